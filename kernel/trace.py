@@ -1,0 +1,325 @@
+"""The hot loop: trace a chunk of photons from the lamps until absorbed, escaped or cut.
+
+One call traces photons ``first .. first + count - 1`` of a run.  Everything the
+loop needs arrives as flat arrays (see :func:`trace_chunk`); everything it finds
+is *added* to the output arrays, so a caller can reduce chunks in a fixed order
+and get the same sums on any number of threads.
+
+Physics (SEC2's model, see ``docs/physics.md``):
+
+* at a surface hit one event is drawn: diffuse reflection, specular reflection,
+  diffuse transmission, specular transmission or absorption;
+* all spectral bands travel together: the event is drawn with the band-averaged
+  probability q_e and each band's weight is multiplied by P_e,b / q_e, which is
+  unbiased for every band (and exactly analog when there is one band);
+* transparent sensors record each crossing from their front side at the
+  photon's current weight; receivers (solid sensors, organs) record each hit
+  (incident) and the weight absorbed on them.
+
+Tallies are per photon first, then squared, so ``tally_sq`` gives the sample
+variance of per-photon contributions (a photon may cross a sensor twice).
+"""
+import math
+
+import numpy as np
+from numba import njit
+
+from .embree import (ARGS, CAND, CAND_CAP, CAND_COUNT, DIR, GEOM_ID, INVALID_ID, MASK, NG, ORG, PRIM_ID,
+                     RAYHIT, TFAR, TNEAR)
+from .ptr import call_ptr3, load_f32, load_i64, load_u32, store_f32, store_i64, store_u32
+from .rng import seed_stream, uniform
+from .sampling import cosine_hemisphere, mirror, phong_lobe, to_world, uniform_sphere
+
+# scattering events, in the order their probabilities are accumulated
+DIFFUSE_R, SPECULAR_R, DIFFUSE_T, SPECULAR_T, ABSORB = 0, 1, 2, 3, 4
+N_EVENTS = 5
+
+# emitter element kinds
+EMIT_LINE, EMIT_TRIANGLE, EMIT_CYLINDER, EMIT_POINT, EMIT_SPHERE = 0, 1, 2, 3, 4
+
+# sensor kinds
+SENSOR_DISC, SENSOR_QUAD = 0, 1
+
+# counters
+C_RAYS, C_CAND_OVERFLOW, C_SCRATCH_FLUSH, C_LOST = 0, 1, 2, 3
+N_COUNTERS = 4
+
+HIT_CAP = 256          # per-photon tally events kept before a flush
+_TFAR_MAX = 3.0e38
+
+
+@njit(inline="always", cache=True)
+def _record(k, w, hit_k, hit_w, nh, tally, tally_sq, counters):
+    if nh == hit_k.shape[0]:
+        _flush(nh, hit_k, hit_w, tally, tally_sq)
+        counters[C_SCRATCH_FLUSH] += 1
+        nh = 0
+    hit_k[nh] = k
+    hit_w[nh, :] = w
+    return nh + 1
+
+
+@njit(cache=True)
+def _flush(nh, hit_k, hit_w, tally, tally_sq):
+    """Add one photon's contributions: sum per tally index, then add sums and squares."""
+    for a in range(nh):
+        k = hit_k[a]
+        if k < 0:
+            continue
+        for a2 in range(a + 1, nh):
+            if hit_k[a2] == k:
+                hit_w[a, :] += hit_w[a2, :]
+                hit_k[a2] = -1
+        for b in range(hit_w.shape[1]):
+            x = hit_w[a, b]
+            tally[k, b] += x
+            tally_sq[k, b] += x * x
+
+
+@njit(inline="always", cache=True)
+def _end(f, w, fate, fate_sq):
+    for b in range(w.shape[0]):
+        fate[f, b] += w[b]
+        fate_sq[f, b] += w[b] * w[b]
+
+
+@njit(inline="always", cache=True)
+def _inside(s, px, py, pz, kind, center, radius, corners, normal):
+    """Is the point p (on the sensor's plane) inside sensor s?  Exact for discs and quads."""
+    if kind[s] == SENSOR_DISC:
+        ex, ey, ez = px - center[s, 0], py - center[s, 1], pz - center[s, 2]
+        return ex * ex + ey * ey + ez * ez <= radius[s] * radius[s]
+    # convex quad: p must lie left of every edge, seen along the normal
+    for i in range(4):
+        j = (i + 1) % 4
+        ax, ay, az = corners[s, j, 0] - corners[s, i, 0], corners[s, j, 1] - corners[s, i, 1], corners[s, j, 2] - corners[s, i, 2]
+        bx, by, bz = px - corners[s, i, 0], py - corners[s, i, 1], pz - corners[s, i, 2]
+        cx, cy, cz = ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx
+        if cx * normal[s, 0] + cy * normal[s, 1] + cz * normal[s, 2] < 0.0:
+            return False
+    return True
+
+
+@njit(inline="always", cache=True)
+def _binary_search(cdf, u):
+    lo, hi = 0, cdf.shape[0] - 1
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if cdf[mid] > u:
+            hi = mid
+        else:
+            lo = mid + 1
+    return lo
+
+
+@njit(inline="always", cache=True)
+def _emit(e, kind, data, state, offset_rel):
+    """Sample an origin and a direction on emitter element e."""
+    k = kind[e]
+    u1, u2, u3, u4 = uniform(state), uniform(state), uniform(state), uniform(state)
+    if k == EMIT_LINE or k == EMIT_POINT:
+        f = u1 if k == EMIT_LINE else 0.0
+        ox = data[e, 0, 0] + f * (data[e, 1, 0] - data[e, 0, 0])
+        oy = data[e, 0, 1] + f * (data[e, 1, 1] - data[e, 0, 1])
+        oz = data[e, 0, 2] + f * (data[e, 1, 2] - data[e, 0, 2])
+        dx, dy, dz = uniform_sphere(u2, u3)
+        return ox, oy, oz, dx, dy, dz
+    if k == EMIT_TRIANGLE:
+        su = math.sqrt(u1)
+        b0, b1 = 1.0 - su, u2 * su
+        b2 = 1.0 - b0 - b1
+        ox = b0 * data[e, 0, 0] + b1 * data[e, 1, 0] + b2 * data[e, 2, 0]
+        oy = b0 * data[e, 0, 1] + b1 * data[e, 1, 1] + b2 * data[e, 2, 1]
+        oz = b0 * data[e, 0, 2] + b1 * data[e, 1, 2] + b2 * data[e, 2, 2]
+        ax, ay, az = data[e, 1, 0] - data[e, 0, 0], data[e, 1, 1] - data[e, 0, 1], data[e, 1, 2] - data[e, 0, 2]
+        bx, by, bz = data[e, 2, 0] - data[e, 0, 0], data[e, 2, 1] - data[e, 0, 1], data[e, 2, 2] - data[e, 0, 2]
+        nx, ny, nz = ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx
+    elif k == EMIT_CYLINDER:
+        ax, ay, az = data[e, 1, 0] - data[e, 0, 0], data[e, 1, 1] - data[e, 0, 1], data[e, 1, 2] - data[e, 0, 2]
+        length = math.sqrt(ax * ax + ay * ay + az * az)
+        lx, ly, lz = to_world(math.cos(2 * math.pi * u2), math.sin(2 * math.pi * u2), 0.0,
+                              ax / length, ay / length, az / length)
+        r = data[e, 2, 0]
+        ox, oy, oz = data[e, 0, 0] + u1 * ax + r * lx, data[e, 0, 1] + u1 * ay + r * ly, data[e, 0, 2] + u1 * az + r * lz
+        nx, ny, nz = lx, ly, lz
+    else:  # EMIT_SPHERE
+        nx, ny, nz = uniform_sphere(u1, u2)
+        r = data[e, 1, 0]
+        ox, oy, oz = data[e, 0, 0] + r * nx, data[e, 0, 1] + r * ny, data[e, 0, 2] + r * nz
+    inv = 1.0 / math.sqrt(nx * nx + ny * ny + nz * nz)
+    nx, ny, nz = nx * inv, ny * inv, nz * inv
+    dx, dy, dz = cosine_hemisphere(nx, ny, nz, u3, u4)
+    eps = offset_rel * max(abs(ox), abs(oy), abs(oz), 1e-30)
+    return ox + eps * nx, oy + eps * ny, oz + eps * nz, dx, dy, dz
+
+
+@njit(nogil=True, cache=True)
+def trace_chunk(scene, intersect_fn, scratch, seed, first, count,
+                geom_offset, tri_normal, tri_mat, tri_receiver,
+                mat_prob, mat_cum, mat_phong,
+                sens_kind, sens_center, sens_normal, sens_radius, sens_corners,
+                emit_kind, emit_data, emit_cdf,
+                max_depth, offset_rel, n_receivers,
+                tally, tally_sq, fate, fate_sq, counters):
+    """Trace photons ``first .. first+count-1``; add what they do to the output arrays.
+
+    Parameters (T triangles, M materials, B bands, S sensors, E emitter elements,
+    R receivers, K = S + 2R tallies):
+
+    scene, intersect_fn, scratch : int
+        Embree scene handle, address of ``rtcIntersect1``, base of this thread's
+        scratch block (:func:`kernel.embree.new_scratch`).
+    seed, first, count : int
+        Run seed and photon index range; photon i's random stream is a function
+        of ``(seed, i)`` only.
+    geom_offset : (3,) int64
+        Global triangle index = Embree ``primID + geom_offset[geomID]``.
+    tri_normal : (T, 3) float64, unit right-hand-rule normals.
+    tri_mat : (T, 2) int32, material seen from the front / back side.
+    tri_receiver : (T,) int32, receiver index or -1.
+    mat_prob : (M, 5, B) float64, probability of each event per band.
+    mat_cum : (M, 5) float64, cumulative band-averaged event probabilities.
+    mat_phong : (M,) float64, Phong exponent of the specular lobe (inf = mirror).
+    sens_* : transparent sensors: kind, centre (S, 3), unit normal (S, 3),
+        radius (S,), quad corners (S, 4, 3).
+    emit_kind (E,), emit_data (E, 3, 3), emit_cdf (E,) : emitter elements and the
+        cumulative distribution of their power.
+    max_depth : int, scattering events allowed before a photon is cut.
+    offset_rel : float, ray offset relative to the coordinates' magnitude.
+    tally, tally_sq : (K, B) float64, expected hits and sum of squared per-photon
+        contributions: rows [0, S) sensor crossings, [S, S+R) receiver incident,
+        [S+R, S+2R) receiver absorbed.
+    fate, fate_sq : (M + 3, B) float64: weight absorbed per material, escaped,
+        cut at max_depth, lost to numerical failure.
+    counters : (4,) int64: rays traced, candidate overflows, scratch flushes, lost.
+    """
+    n_bands = mat_prob.shape[2]
+    n_mat = mat_prob.shape[0]
+    n_sens = sens_center.shape[0]
+    f_escaped, f_cut, f_lost = n_mat, n_mat + 1, n_mat + 2
+    state = np.zeros(1, dtype=np.uint64)
+    w = np.empty(n_bands)
+    hit_k = np.empty(HIT_CAP, dtype=np.int64)
+    hit_w = np.empty((HIT_CAP, n_bands))
+    seen = np.empty(CAND_CAP, dtype=np.int64)
+    rh = scratch + RAYHIT
+    args = scratch + ARGS
+    cand_count = scratch + CAND_COUNT
+
+    for i in range(count):
+        seed_stream(state, seed, first + i)
+        e = _binary_search(emit_cdf, (i + uniform(state)) / count)
+        ox, oy, oz, dx, dy, dz = _emit(e, emit_kind, emit_data, state, offset_rel)
+        w[:] = 1.0
+        nh = 0
+        depth = 0
+        while True:
+            store_f32(rh + ORG, ox)
+            store_f32(rh + ORG + 4, oy)
+            store_f32(rh + ORG + 8, oz)
+            store_f32(rh + TNEAR, 0.0)
+            store_f32(rh + DIR, dx)
+            store_f32(rh + DIR + 4, dy)
+            store_f32(rh + DIR + 8, dz)
+            store_f32(rh + DIR + 12, 0.0)
+            store_f32(rh + TFAR, _TFAR_MAX)
+            store_u32(rh + MASK, 0xFFFFFFFF)
+            store_u32(rh + GEOM_ID, INVALID_ID)
+            store_i64(cand_count, 0)
+            call_ptr3(intersect_fn, scene, rh, args)
+            counters[C_RAYS] += 1
+            gid = load_u32(rh + GEOM_ID)
+            t = math.inf if gid == INVALID_ID else float(load_f32(rh + TFAR))
+
+            # transparent sensors crossed before the surface hit (exact test in float64)
+            nc = load_i64(cand_count)
+            if nc > CAND_CAP:
+                counters[C_CAND_OVERFLOW] += 1
+                nc = CAND_CAP
+            n_seen = 0
+            for c in range(nc):
+                s = load_u32(scratch + CAND + 8 * c) // 2
+                dup = False
+                for j in range(n_seen):
+                    if seen[j] == s:
+                        dup = True
+                        break
+                if dup:
+                    continue
+                seen[n_seen] = s
+                n_seen += 1
+                snx, sny, snz = sens_normal[s, 0], sens_normal[s, 1], sens_normal[s, 2]
+                den = dx * snx + dy * sny + dz * snz
+                if den >= 0.0:
+                    continue
+                ts = ((sens_center[s, 0] - ox) * snx + (sens_center[s, 1] - oy) * sny
+                      + (sens_center[s, 2] - oz) * snz) / den
+                if ts <= 0.0 or ts >= t:
+                    continue
+                if _inside(s, ox + ts * dx, oy + ts * dy, oz + ts * dz,
+                           sens_kind, sens_center, sens_radius, sens_corners, sens_normal):
+                    nh = _record(s, w, hit_k, hit_w, nh, tally, tally_sq, counters)
+
+            if gid == INVALID_ID:
+                _end(f_escaped, w, fate, fate_sq)
+                break
+            tri = load_u32(rh + PRIM_ID) + geom_offset[gid]
+            nx, ny, nz = tri_normal[tri, 0], tri_normal[tri, 1], tri_normal[tri, 2]
+            if dx * nx + dy * ny + dz * nz > 0.0:      # back side of a two-sided surface
+                nx, ny, nz = -nx, -ny, -nz
+                m = tri_mat[tri, 1]
+            else:
+                m = tri_mat[tri, 0]
+            px, py, pz = ox + t * dx, oy + t * dy, oz + t * dz
+            if not (math.isfinite(px) and math.isfinite(py) and math.isfinite(pz)):
+                counters[C_LOST] += 1
+                _end(f_lost, w, fate, fate_sq)
+                break
+            rec = tri_receiver[tri]
+            if rec >= 0:
+                nh = _record(n_sens + rec, w, hit_k, hit_w, nh, tally, tally_sq, counters)
+            if depth >= max_depth:
+                _end(f_cut, w, fate, fate_sq)
+                break
+
+            # one event, drawn with band-averaged probabilities; weights carry the rest
+            u = uniform(state)
+            ev = 0
+            while ev < ABSORB and u >= mat_cum[m, ev]:
+                ev += 1
+            q = mat_cum[m, ev] - (mat_cum[m, ev - 1] if ev > 0 else 0.0)
+            for b in range(n_bands):
+                w[b] *= mat_prob[m, ev, b] / q
+            if ev == ABSORB:
+                if rec >= 0:
+                    nh = _record(n_sens + n_receivers + rec, w, hit_k, hit_w, nh, tally, tally_sq, counters)
+                _end(m, w, fate, fate_sq)
+                break
+            depth += 1
+            u1, u2 = uniform(state), uniform(state)
+            if ev == DIFFUSE_R:
+                dx, dy, dz = cosine_hemisphere(nx, ny, nz, u1, u2)
+                side = 1.0
+            elif ev == SPECULAR_R:
+                rx, ry, rz = mirror(dx, dy, dz, nx, ny, nz)
+                if math.isinf(mat_phong[m]):
+                    dx, dy, dz = rx, ry, rz
+                else:
+                    dx, dy, dz = phong_lobe(rx, ry, rz, mat_phong[m], u1, u2)
+                    if dx * nx + dy * ny + dz * nz <= 0.0:   # lobe below the surface: lost there
+                        if rec >= 0:
+                            nh = _record(n_sens + n_receivers + rec, w, hit_k, hit_w, nh, tally, tally_sq,
+                                         counters)
+                        _end(m, w, fate, fate_sq)
+                        break
+                side = 1.0
+            elif ev == DIFFUSE_T:
+                dx, dy, dz = cosine_hemisphere(-nx, -ny, -nz, u1, u2)
+                side = -1.0
+            else:   # SPECULAR_T: straight through a thin surface
+                side = -1.0
+            inv = 1.0 / math.sqrt(dx * dx + dy * dy + dz * dz)
+            dx, dy, dz = dx * inv, dy * inv, dz * inv
+            eps = side * offset_rel * (max(abs(px), abs(py), abs(pz)) + max(abs(ox), abs(oy), abs(oz)))
+            ox, oy, oz = px + eps * nx, py + eps * ny, pz + eps * nz
+        _flush(nh, hit_k, hit_w, tally, tally_sq)

@@ -1,0 +1,158 @@
+"""Radiance surfaces as triangles, keeping each surface's front side.
+
+Every function returns an ``(n, 3, 3)`` float64 array of triangles (vertex rows)
+whose right-hand-rule normal points to the surface's front: for a polygon the
+side its vertex order winds counter-clockwise around; outward for cylinders,
+spheres and rings as Radiance defines them (``tube`` and ``bubble`` inward).
+Curved surfaces are tessellated with an area-preserving radius so that the
+tessellated area equals the exact one.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+
+def newell_normal(points: np.ndarray) -> np.ndarray:
+    """Area-weighted normal of a (possibly non-planar) polygon, (3,); its length is twice the area."""
+    p = np.asarray(points, dtype=float)
+    q = np.roll(p, -1, axis=0)
+    return np.array([np.sum((p[:, 1] - q[:, 1]) * (p[:, 2] + q[:, 2])),
+                     np.sum((p[:, 2] - q[:, 2]) * (p[:, 0] + q[:, 0])),
+                     np.sum((p[:, 0] - q[:, 0]) * (p[:, 1] + q[:, 1]))])
+
+
+def triangulate_polygon(points) -> np.ndarray:
+    """Ear-clip a simple polygon (convex or not) into triangles with its winding.
+
+    ``points``: (n, 3), n >= 3.  Repeated consecutive vertices are dropped.
+    Raises ``ValueError`` for a polygon of zero area.
+    """
+    p = np.asarray(points, dtype=float)
+    keep = np.ones(len(p), bool)
+    keep[1:] = np.any(p[1:] != p[:-1], axis=1)
+    p = p[keep]
+    if len(p) > 1 and np.all(p[0] == p[-1]):
+        p = p[:-1]
+    if len(p) < 3:
+        raise ValueError("polygon has fewer than 3 distinct vertices")
+    normal = newell_normal(p)
+    norm = np.linalg.norm(normal)
+    scale = np.abs(p).max() + np.ptp(p, axis=0).max()
+    if not norm > 1e-12 * scale * scale:
+        raise ValueError("polygon has zero area")
+    normal /= norm
+    if len(p) == 3:
+        return p[None].copy()
+    # project to the plane's 2-D frame, counter-clockwise seen from the front
+    axis = np.argmax(np.abs(normal))
+    u, v = [(1, 2), (2, 0), (0, 1)][axis]
+    xy = p[:, [u, v]]
+    if normal[axis] < 0:
+        xy = xy[:, ::-1]
+    idx = list(range(len(p)))
+    tris = []
+    guard = 0
+    while len(idx) > 3 and guard < 10 * len(p) ** 2:
+        guard += 1
+        n = len(idx)
+        for k in range(n):
+            i0, i1, i2 = idx[k - 1], idx[k], idx[(k + 1) % n]
+            a, b, c = xy[i0], xy[i1], xy[i2]
+            cross = (b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0])
+            if cross <= 0:
+                continue   # reflex or flat corner
+            if any(_in_triangle(xy[j], a, b, c) for j in idx if j not in (i0, i1, i2)):
+                continue
+            tris.append((i0, i1, i2))
+            del idx[k]
+            break
+        else:
+            break   # no ear found (self-intersecting): fall back to a fan of what is left
+    if len(idx) > 3:
+        tris.extend((idx[0], idx[k], idx[k + 1]) for k in range(1, len(idx) - 1))
+    else:
+        tris.append(tuple(idx))
+    return p[np.array(tris)]
+
+
+def _in_triangle(q, a, b, c) -> bool:
+    d1 = (q[0] - b[0]) * (a[1] - b[1]) - (a[0] - b[0]) * (q[1] - b[1])
+    d2 = (q[0] - c[0]) * (b[1] - c[1]) - (b[0] - c[0]) * (q[1] - c[1])
+    d3 = (q[0] - a[0]) * (c[1] - a[1]) - (c[0] - a[0]) * (q[1] - a[1])
+    neg = (d1 < 0) or (d2 < 0) or (d3 < 0)
+    pos = (d1 > 0) or (d2 > 0) or (d3 > 0)
+    return not (neg and pos)
+
+
+def _ring_points(center, axis, radius, n):
+    """n points on a circle, counter-clockwise seen from +axis; radius chosen so that the
+    n-gon has the circle's area."""
+    axis = np.asarray(axis, float) / np.linalg.norm(axis)
+    helper = np.array([1.0, 0, 0]) if abs(axis[0]) < 0.9 else np.array([0, 1.0, 0])
+    t = np.cross(axis, helper)
+    t /= np.linalg.norm(t)
+    b = np.cross(axis, t)
+    r = radius * math.sqrt(2 * math.pi / (n * math.sin(2 * math.pi / n)))
+    phi = 2 * math.pi * np.arange(n) / n
+    return np.asarray(center, float) + r * (np.cos(phi)[:, None] * t + np.sin(phi)[:, None] * b)
+
+
+def cylinder(p0, p1, radius, segments: int = 24, inward: bool = False) -> np.ndarray:
+    """Open cylinder from ``p0`` to ``p1``; outward-facing unless ``inward`` (Radiance ``tube``).
+
+    The polygon's radius keeps the lateral area exact to first order (perimeter preserved).
+    """
+    p0, p1 = np.asarray(p0, float), np.asarray(p1, float)
+    axis = p1 - p0
+    ring = _ring_points(np.zeros(3), axis, 1.0, segments)
+    ring *= radius * (math.pi / (segments * math.sin(math.pi / segments))) / np.linalg.norm(ring[0])
+    a, b = p0 + ring, p1 + ring
+    a2, b2 = np.roll(a, -1, axis=0), np.roll(b, -1, axis=0)
+    tris = np.concatenate([np.stack([a, a2, b2], 1), np.stack([a, b2, b], 1)])
+    return tris[:, ::-1].copy() if inward else tris
+
+
+def sphere(center, radius, subdivisions: int = 2, inward: bool = False) -> np.ndarray:
+    """Icosphere scaled so its total area equals 4πr²; outward unless ``inward`` (``bubble``)."""
+    t = (1 + math.sqrt(5)) / 2
+    v = np.array([[-1, t, 0], [1, t, 0], [-1, -t, 0], [1, -t, 0], [0, -1, t], [0, 1, t], [0, -1, -t], [0, 1, -t],
+                  [t, 0, -1], [t, 0, 1], [-t, 0, -1], [-t, 0, 1]], float)
+    f = np.array([[0, 11, 5], [0, 5, 1], [0, 1, 7], [0, 7, 10], [0, 10, 11], [1, 5, 9], [5, 11, 4], [11, 10, 2],
+                  [10, 7, 6], [7, 1, 8], [3, 9, 4], [3, 4, 2], [3, 2, 6], [3, 6, 8], [3, 8, 9], [4, 9, 5],
+                  [2, 4, 11], [6, 2, 10], [8, 6, 7], [9, 8, 1]])
+    tris = v[f]
+    tris /= np.linalg.norm(tris, axis=2, keepdims=True)
+    for _ in range(subdivisions):
+        a, b, c = tris[:, 0], tris[:, 1], tris[:, 2]
+        ab, bc, ca = [(x + y) / np.linalg.norm(x + y, axis=1, keepdims=True) for x, y in ((a, b), (b, c), (c, a))]
+        tris = np.concatenate([np.stack(s, 1) for s in ((a, ab, ca), (ab, b, bc), (ca, bc, c), (ab, bc, ca))])
+    area = triangle_areas(tris).sum()
+    tris *= math.sqrt(4 * math.pi / area) * radius
+    tris += np.asarray(center, float)
+    return tris[:, ::-1].copy() if inward else tris
+
+
+def ring(center, normal, r_inner, r_outer, segments: int = 24) -> np.ndarray:
+    """Flat annulus (disc if ``r_inner`` = 0) facing ``normal``, with the exact area."""
+    outer = _ring_points(center, normal, r_outer, segments)
+    c = np.asarray(center, float)
+    if r_inner <= 0:
+        return np.stack([np.broadcast_to(c, outer.shape), outer, np.roll(outer, -1, axis=0)], 1)
+    inner = _ring_points(center, normal, r_inner, segments)
+    o2, i2 = np.roll(outer, -1, axis=0), np.roll(inner, -1, axis=0)
+    return np.concatenate([np.stack([inner, outer, o2], 1), np.stack([inner, o2, i2], 1)])
+
+
+def triangle_normals(tris: np.ndarray) -> np.ndarray:
+    """Unit right-hand-rule normals of (n, 3, 3) triangles, (n, 3); zero rows for degenerate ones."""
+    n = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
+    length = np.linalg.norm(n, axis=1, keepdims=True)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(length > 0, n / np.where(length > 0, length, 1), 0.0)
+
+
+def triangle_areas(tris: np.ndarray) -> np.ndarray:
+    """Areas of (n, 3, 3) triangles, (n,)."""
+    return 0.5 * np.linalg.norm(np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0]), axis=1)

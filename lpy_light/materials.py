@@ -1,0 +1,117 @@
+"""Materials: what a surface does to a photon, per spectral band.
+
+Each material becomes a (5, B) table of event probabilities (SEC2's model):
+
+=================  =================================  ==============================
+event              probability                        new direction
+=================  =================================  ==============================
+diffuse reflect    R·(1 − s)                          cosine lobe, front side
+specular reflect   R·s                                mirror (or Phong lobe, option)
+diffuse transmit   T·(1 − t_s)                        cosine lobe, back side
+specular transmit  T·t_s                              unchanged (thin surface)
+absorb             1 − R − T                          photon ends
+=================  =================================  ==============================
+
+R, T: band means of the measured tables when the material has one (file name =
+material name), else the ``.rad`` values (mean of the R, G, B reals).  s: the
+specularity table's value, else the ``.rad`` specularity.  Radiance parameters:
+
+* ``plastic``/``metal`` R G B spec rough — SEC2 uses the same split for both.
+* ``trans`` R G B spec rough trans tspec — read as SEC2 does: ``trans`` is the
+  transmittance T itself and ``tspec`` the specular part of it.  (Radiance's own
+  ``trans`` divides these differently; see docs/physics.md.)
+* ``mirror`` R G B — R = mean, all specular.
+* ``light``/``glow`` — emit; as surfaces they absorb everything.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from .errors import InputError
+from .radiance import MATERIAL_TYPES
+
+DIFFUSE_R, SPECULAR_R, DIFFUSE_T, SPECULAR_T, ABSORB = range(5)
+EMITTING = ("light", "glow")
+
+
+@dataclass
+class Material:
+    """A material's per-band behaviour.  ``events``: (5, B) probabilities; ``roughness``: Radiance α."""
+
+    name: str
+    type: str
+    events: np.ndarray
+    roughness: float = 0.0
+    radiance: float = 0.0     # mean RGB radiance of light/glow, W sr⁻¹ m⁻² in Radiance's units
+    where: str = ""
+
+
+def build_material(prim, bands, optical=None, specularities=None) -> Material:
+    """Event table of one material primitive for ``bands`` (list of (start, end) nm, or None = rad values)."""
+    n_bands = 1 if bands is None else len(bands)
+    expected = MATERIAL_TYPES[prim.type]
+    if len(prim.reals) != expected:
+        raise InputError("%s %s needs %d real arguments, got %d" % (prim.type, prim.identifier, expected,
+                                                                   len(prim.reals)), prim.path, prim.line)
+    r = prim.reals
+    events = np.zeros((5, n_bands))
+    if prim.type in EMITTING:
+        events[ABSORB] = 1.0
+        return Material(prim.identifier, prim.type, events, radiance=float(np.mean(r[:3])), where=prim.where)
+    if any(x < 0 for x in r):
+        raise InputError("%s %s has a negative argument" % (prim.type, prim.identifier), prim.path, prim.line)
+
+    def from_table(tables, fallback):
+        if bands is not None and optical is not None and prim.identifier in tables:
+            return np.array([tables[prim.identifier].band_mean(a, b) for a, b in bands])
+        return np.full(n_bands, fallback)
+
+    R = from_table(optical.reflectance if optical else {}, float(np.mean(r[:3])))
+    s = r[3] if prim.type != "mirror" else 1.0
+    if specularities and prim.identifier in specularities and prim.type != "mirror":
+        s = specularities[prim.identifier]
+    rough = r[4] if prim.type in ("plastic", "metal", "trans") else 0.0
+    T = np.zeros(n_bands)
+    tspec = 0.0
+    if prim.type == "trans":
+        T = from_table(optical.transmittance if optical else {}, r[5])
+        tspec = r[6]
+    if s > 1 or tspec > 1:
+        raise InputError("%s %s: specular fractions must be <= 1" % (prim.type, prim.identifier),
+                         prim.path, prim.line)
+    events[DIFFUSE_R] = R * (1 - s)
+    events[SPECULAR_R] = R * s
+    events[DIFFUSE_T] = T * (1 - tspec)
+    events[SPECULAR_T] = T * tspec
+    total = R + T
+    if np.any(total > 1 + 1e-9):
+        b = int(np.argmax(total))
+        raise InputError("%s %s reflects and transmits %.4g > 1 (band %d): not energy-conserving"
+                         % (prim.type, prim.identifier, total[b], b), prim.path, prim.line)
+    events[ABSORB] = np.clip(1 - total, 0, 1)
+    return Material(prim.identifier, prim.type, events, roughness=rough, where=prim.where)
+
+
+def black(n_bands: int, name: str = "black") -> Material:
+    e = np.zeros((5, n_bands))
+    e[ABSORB] = 1
+    return Material(name, "plastic", e)
+
+
+def sampling_tables(materials, specular: str = "mirror"):
+    """Arrays the kernel needs: ``prob`` (M, 5, B), ``cum`` (M, 5) cumulative band-averaged
+    probabilities, ``phong`` (M,) lobe exponents (inf = perfect mirror)."""
+    from .kernel.sampling import phong_exponent
+
+    prob = np.stack([m.events for m in materials])
+    mean = prob.mean(axis=2)
+    cum = np.cumsum(mean, axis=1)
+    cum[:, -1] = 1.0 + 1e-12   # absorption takes the rest, whatever the rounding
+    if specular == "phong":
+        phong = np.array([phong_exponent(m.roughness) for m in materials])
+    else:
+        phong = np.full(len(materials), math.inf)
+    return prob, cum, phong

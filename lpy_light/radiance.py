@@ -1,0 +1,135 @@
+"""Reading Radiance scene descriptions (``.rad``) as Radiance reads them.
+
+A ``.rad`` file is a stream of whitespace-separated tokens; ``#`` starts a comment
+that runs to the end of the line.  Each primitive is::
+
+    modifier type identifier
+    n_strings  s1 ... sn
+    n_ints     i1 ... in
+    n_reals    r1 ... rn
+
+Items need not be one per line.  :func:`read_rad` returns every primitive in file
+order (repeated identifiers are all kept) with the line where it starts; what a
+type *means* is decided in :mod:`lpy_light.scene`.  Inline commands (``!cmd``)
+are refused with an error naming the line.
+"""
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from .errors import InputError
+
+#: Primitive types lpy-light understands, with the number of reals each takes
+#: (``None``: a multiple of 3, at least 9, for polygons).
+SURFACE_TYPES = {"polygon": None, "cylinder": 7, "tube": 7, "sphere": 4, "bubble": 4, "ring": 8}
+MATERIAL_TYPES = {"plastic": 5, "metal": 5, "trans": 7, "light": 3, "glow": 4, "mirror": 3}
+#: Radiance types we know but do not model: an error, not a silent skip.
+UNSUPPORTED_TYPES = {"cone", "cup", "source", "instance", "mesh", "dielectric", "interface", "glass",
+                     "plasfunc", "metfunc", "transfunc", "BRTDfunc", "plasdata", "metdata", "transdata",
+                     "texfunc", "texdata", "patfunc", "brightfunc", "colorfunc", "brightdata", "colordata",
+                     "colorpict", "mixfunc", "mixdata", "mixtext", "mixpict", "antimatter", "prism1",
+                     "prism2", "spotlight", "illum", "mist", "BSDF", "aBSDF", "ashik2", "WGMDfunc",
+                     "brighttext", "colortext", "alias", "trans2", "plastic2", "metal2"}
+
+_TOKEN = re.compile(r"\S+")
+
+
+@dataclass
+class Primitive:
+    """One Radiance primitive: ``modifier type identifier`` and its arguments."""
+
+    modifier: str
+    type: str
+    identifier: str
+    strings: list = field(default_factory=list)
+    ints: list = field(default_factory=list)
+    reals: list = field(default_factory=list)
+    path: str = ""
+    line: int = 0
+
+    @property
+    def where(self) -> str:
+        return "%s:%d" % (self.path, self.line)
+
+
+def tokenize(text: str):
+    """Yield ``(token, line_number)`` pairs; ``#`` comments are dropped."""
+    for number, raw in enumerate(text.splitlines(), start=1):
+        line = raw.split("#", 1)[0]
+        for match in _TOKEN.finditer(line):
+            yield match.group(0), number
+
+
+def read_rad(path) -> list:
+    """Parse a ``.rad`` file into a list of :class:`Primitive`.
+
+    Raises :class:`InputError` naming file and line on any syntax problem: a
+    truncated primitive, a count that is not a non-negative integer, a real that
+    is not a finite number, an inline ``!command``.
+    """
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8", errors="replace")
+    except OSError as exc:
+        raise InputError("cannot read Radiance file: %s" % exc.strerror, path) from None
+    return parse_rad(text, str(path))
+
+
+def parse_rad(text: str, name: str = "<string>") -> list:
+    """Parse Radiance text (see :func:`read_rad`); ``name`` is used in error messages."""
+    tokens = list(tokenize(text))
+    prims = []
+    i = 0
+    n = len(tokens)
+
+    def take(what, start_line):
+        nonlocal i
+        if i >= n:
+            raise InputError("unexpected end of file: expected %s of the primitive starting here" % what,
+                             name, start_line)
+        tok, line = tokens[i]
+        i += 1
+        return tok, line
+
+    def count(what, start_line):
+        tok, line = take("the number of " + what, start_line)
+        if not tok.isdigit():
+            raise InputError("expected the number of %s (a non-negative integer), got %r" % (what, tok),
+                             name, line)
+        return int(tok)
+
+    while i < n:
+        tok, start = tokens[i]
+        if tok.startswith("!"):
+            raise InputError("inline commands (%r) are not supported; expand the scene first "
+                             "(e.g. with Radiance's xform) and pass the result" % tok, name, start)
+        modifier, _ = take("a modifier", start)
+        ptype, line = take("a primitive type", start)
+        ident, _ = take("an identifier", start)
+        if ptype.startswith("!") or ident.startswith("!"):
+            raise InputError("inline commands are not supported", name, line)
+        strings = [take("a string argument", start)[0] for _ in range(count("string arguments", start))]
+        ints = []
+        for _ in range(count("integer arguments", start)):
+            tok, line = take("an integer argument", start)
+            try:
+                ints.append(int(tok))
+            except ValueError:
+                raise InputError("expected an integer argument, got %r" % tok, name, line) from None
+        reals = []
+        for _ in range(count("real arguments", start)):
+            tok, line = take("a real argument", start)
+            try:
+                value = float(tok)
+            except ValueError:
+                raise InputError("expected a real number, got %r (primitive %s %s)" % (tok, ptype, ident),
+                                 name, line) from None
+            if not math.isfinite(value):
+                raise InputError("real argument %r is not finite (primitive %s %s)" % (tok, ptype, ident),
+                                 name, line)
+            reals.append(value)
+        prims.append(Primitive(modifier, ptype, ident, strings, ints, reals, name, start))
+    return prims

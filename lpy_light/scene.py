@@ -1,0 +1,338 @@
+"""A growth chamber ready to trace: surfaces, materials, lamps, sensors, bands.
+
+Scene files (TOML) name the inputs; paths are relative to the scene file::
+
+    geometry = "geometry/testChamber.rad"        # or a list of .rad files
+    sensors = "sensors/captors_expe1.csv"          # or a list; optional
+    unit = "mm"                                    # mm (default), cm, m, km
+    optical = "optical"                            # folder of measured tables; optional
+    specularities = "optical/Specularities.xlsx"   # or .csv; optional
+    bands = [[655, 665]]                           # nm, [start, end); optional
+    solid_sensors = "receivers.rad"                # opaque sensors with a material; optional
+    remove = ["fauxPlafondInf"]                    # identifiers to leave out; optional
+
+    [physics]                                      # optional, SEC2's semantics by default
+    one_sided = true          # a surface is seen only from its front (SEC2)
+    lamps = "line"            # light cylinders: isotropic line sources (SEC2) | "lambertian"
+    specular = "mirror"       # specular reflection: "mirror" (SEC2) | "phong" (lobe from roughness)
+    max_depth = 50            # scattering events before a photon is cut
+
+Without ``bands`` the scene has one band, ``rad``, with the ``.rad`` values.
+"""
+from __future__ import annotations
+
+import logging
+import math
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from . import geometry as geo
+from .emitters import EmitterBuilder, Emitters
+from .errors import InputError
+from .materials import EMITTING, Material, build_material
+from .optical import read_optical_folder, read_specularities
+from .radiance import MATERIAL_TYPES, SURFACE_TYPES, UNSUPPORTED_TYPES, read_rad
+from .sensors import Sensors, read_sensors
+
+log = logging.getLogger("lpy_light")
+
+UNITS = {"mm": 1e-3, "cm": 1e-2, "dm": 1e-1, "m": 1.0, "km": 1e3}
+_SCENE_KEYS = {"geometry", "sensors", "unit", "optical", "specularities", "bands", "solid_sensors", "remove",
+               "physics", "spectrum", "calibration", "name"}
+_PHYSICS_KEYS = {"one_sided": bool, "lamps": str, "specular": str, "max_depth": int, "offset": float}
+
+
+@dataclass
+class Physics:
+    """Modelling choices; the defaults are SEC2's (see docs/physics.md)."""
+
+    one_sided: bool = True
+    lamps: str = "line"
+    specular: str = "mirror"
+    max_depth: int = 50
+    offset: float = 2.0 ** -17   # ray offset, relative to the hit point's coordinates
+
+
+@dataclass
+class Chamber:
+    """Everything the kernel needs, in scene units.
+
+    ``triangles`` (T, 3, 3) with ``tri_material`` (T, 2) (front, back material
+    index), ``tri_receiver`` (T,) (receiver index or -1) and ``tri_two_sided`` (T,).
+    """
+
+    triangles: np.ndarray
+    tri_material: np.ndarray
+    tri_receiver: np.ndarray
+    tri_two_sided: np.ndarray
+    tri_source: list            # per triangle: index into ``surfaces``
+    surfaces: list              # (identifier, type, "file:line") of each surface primitive
+    materials: list             # Material
+    emitters: Emitters
+    sensors: Sensors
+    receivers: list             # names of opaque receivers
+    receiver_area: np.ndarray   # (R,) one-sided area, scene units²
+    bands: list | None
+    unit: str = "mm"
+    physics: Physics = field(default_factory=Physics)
+    skipped: list = field(default_factory=list)
+    spectrum: object = None
+    source: str = ""
+
+    @property
+    def band_labels(self) -> list:
+        if self.bands is None:
+            return ["rad"]
+        return ["%g-%g" % (a, b) for a, b in self.bands]
+
+    @property
+    def metres_per_unit(self) -> float:
+        return UNITS[self.unit]
+
+    @property
+    def n_bands(self) -> int:
+        return 1 if self.bands is None else len(self.bands)
+
+
+# ------------------------------------------------------------------------------------------
+def _line_of(text: str, key: str) -> int | None:
+    for number, line in enumerate(text.splitlines(), start=1):
+        if line.strip().startswith(key):
+            return number
+    return None
+
+
+def load_scene(path, **overrides) -> Chamber:
+    """Read a scene TOML file and everything it names; return a :class:`Chamber`."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise InputError("cannot read scene file: %s" % exc.strerror, path) from None
+    except UnicodeDecodeError:
+        raise InputError("scene file is not UTF-8 text", path) from None
+    try:
+        spec = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        msg = str(exc)
+        line = None
+        if "line " in msg:
+            try:
+                line = int(msg.split("line ")[1].split(",")[0].split(")")[0])
+            except ValueError:
+                line = None
+        raise InputError("not valid TOML: %s" % msg.split(" (at")[0], path, line) from None
+    spec.update({k: v for k, v in overrides.items() if v is not None})
+    return chamber_from_spec(spec, path.parent, str(path), text)
+
+
+def chamber_from_spec(spec: dict, base: Path, name: str = "<scene>", text: str = "") -> Chamber:
+    def err(msg, key=None):
+        return InputError(msg, name, _line_of(text, key) if key else None)
+
+    unknown = set(spec) - _SCENE_KEYS
+    if unknown:
+        k = sorted(unknown)[0]
+        raise err("unknown key %r (known: %s)" % (k, ", ".join(sorted(_SCENE_KEYS))), k)
+    if "geometry" not in spec:
+        raise err("missing 'geometry' (a .rad file or a list of them)")
+
+    def paths(key):
+        value = spec.get(key)
+        if value is None:
+            return []
+        items = value if isinstance(value, list) else [value]
+        if not all(isinstance(v, str) for v in items):
+            raise err("%r must be a path or a list of paths" % key, key)
+        out = []
+        for v in items:
+            p = (base / v) if not Path(v).is_absolute() else Path(v)
+            if not p.exists():
+                raise err("%s file not found: %s" % (key, p), key)
+            out.append(p)
+        return out
+
+    unit = spec.get("unit", "mm")
+    if unit not in UNITS:
+        raise err("unknown unit %r (use one of %s)" % (unit, ", ".join(UNITS)), "unit")
+    bands = spec.get("bands")
+    if bands is not None:
+        ok = isinstance(bands, list) and bands and all(
+            isinstance(b, list) and len(b) == 2 and all(isinstance(x, (int, float)) for x in b) and b[0] < b[1]
+            for b in bands)
+        if not ok:
+            raise err("'bands' must be a list of [start, end] pairs in nm with start < end", "bands")
+        bands = [(float(a), float(b)) for a, b in bands]
+    physics = Physics()
+    for key, value in (spec.get("physics") or {}).items():
+        if key not in _PHYSICS_KEYS:
+            raise err("unknown physics option %r (known: %s)" % (key, ", ".join(_PHYSICS_KEYS)), key)
+        kind = _PHYSICS_KEYS[key]
+        if kind is float and isinstance(value, int):
+            value = float(value)
+        if not isinstance(value, kind) or (kind is int and isinstance(value, bool)):
+            raise err("physics option %r must be a %s" % (key, kind.__name__), key)
+        setattr(physics, key, value)
+    if physics.lamps not in ("line", "lambertian"):
+        raise err("physics.lamps must be 'line' or 'lambertian'", "lamps")
+    if physics.specular not in ("mirror", "phong"):
+        raise err("physics.specular must be 'mirror' or 'phong'", "specular")
+    if not 0 <= physics.max_depth <= 10000:
+        raise err("physics.max_depth must be in 0..10000", "max_depth")
+    if not 0 < physics.offset < 1e-2:
+        raise err("physics.offset must be in (0, 0.01)", "offset")
+
+    optical_dirs = paths("optical")
+    optical = read_optical_folder(optical_dirs[0]) if optical_dirs else None
+    spec_files = paths("specularities")
+    specularities = read_specularities(spec_files[0]) if spec_files else None
+    if optical is not None and bands is None:
+        raise err("'optical' tables need 'bands' (e.g. bands = [[655, 665]])", "optical")
+
+    prims = []
+    for p in paths("geometry"):
+        prims.extend(read_rad(p))
+    solid = []
+    for p in paths("solid_sensors"):
+        solid.extend(read_rad(p))
+    remove = spec.get("remove") or []
+    if not isinstance(remove, list) or not all(isinstance(r, str) for r in remove):
+        raise err("'remove' must be a list of identifiers", "remove")
+    sensors = Sensors.concat(read_sensors(p) for p in paths("sensors"))
+    spectrum = None
+    for p in paths("spectrum"):
+        from .units import read_lamp_spectrum
+        spectrum = read_lamp_spectrum(p)
+    chamber = build_chamber(prims, sensors, bands=bands, optical=optical, specularities=specularities,
+                            physics=physics, unit=unit, solid=solid, remove=remove)
+    chamber.spectrum = spectrum
+    chamber.source = name
+    return chamber
+
+
+# ------------------------------------------------------------------------------------------
+def build_chamber(prims, sensors=None, bands=None, optical=None, specularities=None, physics=None,
+                  unit="mm", solid=(), remove=()) -> Chamber:
+    """Turn Radiance primitives into a :class:`Chamber`.
+
+    Materials are looked up as Radiance does: the latest definition before the
+    surface that uses it.  ``solid`` primitives become opaque receivers (one per
+    surface).  ``remove`` leaves out every primitive with one of these
+    identifiers (and errors if one matches nothing).
+    """
+    physics = physics or Physics()
+    n_bands = 1 if bands is None else len(bands)
+    materials: list[Material] = []
+    current: dict[str, int] = {}
+    skipped_types: dict[str, object] = {}
+    emit = EmitterBuilder(physics.lamps)
+    tris, mats, recv, source, surfaces = [], [], [], [], []
+    receivers, receiver_area = [], []
+    skipped = []
+    remove = set(remove)
+    removed = set()
+
+    stream = [(p, False) for p in prims] + [(p, True) for p in solid]
+    for prim, is_receiver in stream:
+        if prim.identifier in remove:
+            removed.add(prim.identifier)
+            continue
+        t = prim.type
+        if t in MATERIAL_TYPES:
+            if prim.modifier != "void":
+                raise InputError("material %s %s: modifier %r not supported (materials must be modified by "
+                                 "'void')" % (t, prim.identifier, prim.modifier), prim.path, prim.line)
+            materials.append(build_material(prim, bands, optical, specularities))
+            current[prim.identifier] = len(materials) - 1
+            continue
+        if t in UNSUPPORTED_TYPES:
+            raise InputError("Radiance type %r is not supported by lpy-light (%s %s)" % (t, t, prim.identifier),
+                             prim.path, prim.line)
+        if t not in SURFACE_TYPES:
+            msg = "unknown primitive type %r (%s %s %s): skipped" % (t, prim.modifier, t, prim.identifier)
+            log.warning("%s: %s", prim.where, msg)
+            skipped.append("%s: %s" % (prim.where, msg))
+            skipped_types[prim.identifier] = prim
+            continue
+        # a surface
+        if prim.modifier not in current:
+            if prim.modifier in skipped_types:
+                raise InputError("surface %s uses modifier %r, which was skipped (%s)"
+                                 % (prim.identifier, prim.modifier, skipped_types[prim.modifier].where),
+                                 prim.path, prim.line)
+            raise InputError("surface %s %s uses undefined modifier %r" % (t, prim.identifier, prim.modifier),
+                             prim.path, prim.line)
+        m = current[prim.modifier]
+        material = materials[m]
+        r = prim.reals
+        expected = SURFACE_TYPES[t]
+        if expected is None:
+            if len(r) < 9 or len(r) % 3:
+                raise InputError("polygon %s needs 3·n reals (n >= 3 vertices), got %d" % (prim.identifier, len(r)),
+                                 prim.path, prim.line)
+        elif len(r) != expected:
+            raise InputError("%s %s needs %d real arguments, got %d" % (t, prim.identifier, expected, len(r)),
+                             prim.path, prim.line)
+        emitting = material.type in EMITTING and material.radiance > 0 and not is_receiver
+        try:
+            if t == "polygon":
+                surf = geo.triangulate_polygon(np.reshape(r, (-1, 3)))
+            elif t in ("cylinder", "tube"):
+                if not r[6] > 0 or np.allclose(r[0:3], r[3:6]):
+                    raise ValueError("cylinder needs a radius > 0 and two distinct end points")
+                if emitting:
+                    emit.cylinder(r[0:3], r[3:6], r[6], material.radiance, prim.identifier)
+                    surf = None   # a lamp is not an obstacle (radius ~0.1 mm)
+                else:
+                    surf = geo.cylinder(r[0:3], r[3:6], r[6], inward=(t == "tube"))
+            elif t in ("sphere", "bubble"):
+                if not r[3] > 0:
+                    raise ValueError("sphere needs a radius > 0")
+                if emitting:
+                    emit.sphere(r[0:3], r[3], material.radiance, prim.identifier)
+                    surf = None
+                else:
+                    surf = geo.sphere(r[0:3], r[3], inward=(t == "bubble"))
+            else:  # ring
+                if not (0 <= r[6] < r[7]) or not np.linalg.norm(r[3:6]) > 0:
+                    raise ValueError("ring needs 0 <= inner radius < outer radius and a non-zero normal")
+                surf = geo.ring(r[0:3], r[3:6], r[6], r[7])
+        except ValueError as exc:
+            raise InputError("%s %s: %s" % (t, prim.identifier, exc), prim.path, prim.line) from None
+        if surf is None:
+            continue
+        if emitting:
+            emit.triangles(surf, material.radiance, prim.identifier)
+        surfaces.append((prim.identifier, t, prim.where))
+        tris.append(surf)
+        mats.append(np.full(len(surf), m))
+        source.append(np.full(len(surf), len(surfaces) - 1))
+        if is_receiver:
+            receivers.append(prim.identifier)
+            receiver_area.append(geo.triangle_areas(surf).sum())
+            recv.append(np.full(len(surf), len(receivers) - 1))
+        else:
+            recv.append(np.full(len(surf), -1))
+
+    missing = remove - removed
+    if missing:
+        raise InputError("'remove' names identifiers not in the geometry: %s" % ", ".join(sorted(missing)))
+    emitters = emit.build()
+    if len(emitters) == 0:
+        raise InputError("the scene has no light source (no light/glow surface with radiance > 0)",
+                         prims[0].path if prims else None)
+    if not tris:
+        tris = [np.zeros((0, 3, 3))]
+        mats, recv, source = [np.zeros(0, int)], [np.zeros(0, int)], [np.zeros(0, int)]
+    triangles = np.concatenate(tris)
+    front = np.concatenate(mats).astype(np.int32)
+    return Chamber(triangles=triangles, tri_material=np.stack([front, front], 1),
+                   tri_receiver=np.concatenate(recv).astype(np.int32),
+                   tri_two_sided=np.full(len(triangles), not physics.one_sided),
+                   tri_source=np.concatenate(source), surfaces=surfaces, materials=materials,
+                   emitters=emitters, sensors=sensors if sensors is not None else Sensors(),
+                   receivers=receivers, receiver_area=np.array(receiver_area, float),
+                   bands=bands, unit=unit, physics=physics, skipped=skipped)

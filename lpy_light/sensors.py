@@ -1,0 +1,152 @@
+"""Transparent sensors: discs (SEC2's csv) and planar quads.
+
+A transparent sensor counts the photons that cross it from its front side (the
+side its normal points to) and leaves them unchanged: it blocks nothing.  The
+kernel tests a crossing *exactly* (|p − c| ≤ r for a disc, inside all four edges
+for a quad), so no tessellation biases the count; Embree only sees a slightly
+larger bounding quad that proposes candidates.
+
+File formats
+------------
+SEC2 discs: header ``X,Y,Z,rayon_capteur,Xnorm,Ynorm,Znorm`` (extra columns such
+as ``Orientation`` are ignored); the normal need not be unit.
+Quads: header ``x0,y0,z0,x1,y1,z1,x2,y2,z2,x3,y3,z3``, corners counter-clockwise
+seen from the front, planar and convex.
+"""
+from __future__ import annotations
+
+import csv
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+DISC, QUAD = 0, 1
+_DISC_COLUMNS = ["X", "Y", "Z", "rayon_capteur", "Xnorm", "Ynorm", "Znorm"]
+_QUAD_COLUMNS = ["%s%d" % (a, i) for i in range(4) for a in "xyz"]
+BOUND_MARGIN = 1.02   # bounding quads are 2 % larger than the sensor they stand for
+
+
+@dataclass
+class Sensors:
+    """S transparent sensors.  Arrays: ``kind`` (S,) int32, ``center`` (S, 3), unit ``normal`` (S, 3),
+    ``radius`` (S,) (discs; 0 for quads), ``corners`` (S, 4, 3) (quads; zeros for discs), in scene units."""
+
+    kind: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int32))
+    center: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    normal: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    radius: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    corners: np.ndarray = field(default_factory=lambda: np.zeros((0, 4, 3)))
+    source: list = field(default_factory=list)   # (file, row) of each sensor
+
+    def __len__(self):
+        return len(self.kind)
+
+    @property
+    def area(self) -> np.ndarray:
+        """Exact area of each sensor, (S,), in scene units²."""
+        a = np.pi * self.radius ** 2
+        q = self.kind == QUAD
+        if q.any():
+            c = self.corners[q]
+            a[q] = 0.5 * np.linalg.norm(np.cross(c[:, 2] - c[:, 0], c[:, 3] - c[:, 1]), axis=1)
+        return a
+
+    @staticmethod
+    def concat(parts):
+        parts = list(parts)
+        if not parts:
+            return Sensors()
+        return Sensors(np.concatenate([p.kind for p in parts]), np.concatenate([p.center for p in parts]),
+                       np.concatenate([p.normal for p in parts]), np.concatenate([p.radius for p in parts]),
+                       np.concatenate([p.corners for p in parts]), sum((p.source for p in parts), []))
+
+    def bounding_triangles(self) -> np.ndarray:
+        """Two triangles per sensor (sensor s owns rows 2s and 2s+1), (2S, 3, 3)."""
+        S = len(self)
+        quads = np.empty((S, 4, 3))
+        for s in range(S):
+            if self.kind[s] == DISC:
+                n = self.normal[s]
+                helper = np.array([1.0, 0, 0]) if abs(n[0]) < 0.9 else np.array([0, 1.0, 0])
+                t = np.cross(n, helper)
+                t /= np.linalg.norm(t)
+                b = np.cross(n, t)
+                h = self.radius[s] * BOUND_MARGIN
+                quads[s] = self.center[s] + h * np.array([-t - b, t - b, t + b, -t + b])
+            else:
+                c = self.corners[s]
+                quads[s] = c.mean(0) + BOUND_MARGIN * (c - c.mean(0))
+        tris = np.empty((2 * S, 3, 3))
+        tris[0::2] = quads[:, [0, 1, 2]]
+        tris[1::2] = quads[:, [0, 2, 3]]
+        return tris
+
+
+def _error(msg, path, line=None):
+    from .errors import InputError
+    return InputError(msg, path, line)
+
+
+def read_sensors(path) -> Sensors:
+    """Read a sensor csv (disc or quad format, told apart by its header)."""
+    path = Path(path)
+    try:
+        with open(path, newline="", encoding="utf-8", errors="replace") as fh:
+            rows = list(csv.reader(fh))
+    except OSError as exc:
+        raise _error("cannot read sensor file: %s" % exc.strerror, path) from None
+    if not rows:
+        raise _error("sensor file is empty", path, 1)
+    header = [h.strip() for h in rows[0]]
+    if header[:7] == _DISC_COLUMNS:
+        columns, kind = _DISC_COLUMNS, DISC
+    elif header[:12] == _QUAD_COLUMNS:
+        columns, kind = _QUAD_COLUMNS, QUAD
+    else:
+        raise _error("unknown sensor header %r: expected %s (discs) or %s (quads)"
+                     % (",".join(header), ",".join(_DISC_COLUMNS), ",".join(_QUAD_COLUMNS)), path, 1)
+    values, source = [], []
+    for number, row in enumerate(rows[1:], start=2):
+        if not row or all(not c.strip() for c in row):
+            continue
+        if len(row) < len(columns):
+            raise _error("expected %d values (%s), got %d" % (len(columns), ",".join(columns), len(row)),
+                         path, number)
+        try:
+            v = [float(c) for c in row[:len(columns)]]
+        except ValueError:
+            raise _error("expected numbers in columns %s, got %r" % (",".join(columns), ",".join(row)),
+                         path, number) from None
+        if not np.all(np.isfinite(v)):
+            raise _error("non-finite sensor value", path, number)
+        values.append(v)
+        source.append((str(path), number))
+    if not values:
+        raise _error("sensor file has no sensors", path)
+    v = np.asarray(values)
+    S = len(v)
+    if kind == DISC:
+        center, radius, normal = v[:, 0:3], v[:, 3], v[:, 4:7]
+        corners = np.zeros((S, 4, 3))
+        for s in range(S):
+            if not radius[s] > 0:
+                raise _error("sensor radius must be > 0, got %g" % radius[s], path, source[s][1])
+    else:
+        corners = v.reshape(S, 4, 3)
+        center = corners.mean(1)
+        normal = np.cross(corners[:, 2] - corners[:, 0], corners[:, 3] - corners[:, 1])
+        radius = np.zeros(S)
+        for s in range(S):
+            c = corners[s]
+            nrm = normal[s] / (np.linalg.norm(normal[s]) or 1)
+            if np.abs((c - center[s]) @ nrm).max() > 1e-6 * (np.ptp(c, 0).max() + np.abs(c).max()):
+                raise _error("quad sensor is not planar", path, source[s][1])
+            for i in range(4):
+                e1, e2 = c[(i + 1) % 4] - c[i], c[(i + 2) % 4] - c[(i + 1) % 4]
+                if np.cross(e1, e2) @ nrm <= 0:
+                    raise _error("quad sensor is not convex or its corners are not in order", path, source[s][1])
+    length = np.linalg.norm(normal, axis=1)
+    for s in np.flatnonzero(~(length > 0)):
+        raise _error("sensor normal is zero", path, source[s][1])
+    return Sensors(np.full(S, kind, np.int32), center, normal / length[:, None], radius, corners, source)

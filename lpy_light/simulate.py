@@ -1,0 +1,198 @@
+"""Run the photon kernel over a chamber: chunks, threads, reduction, standard errors.
+
+Photons are traced in chunks of :data:`CHUNK` photons.  Chunk c holds photons
+``c·CHUNK ..`` whose random streams depend on ``(seed, photon index)`` only, and
+chunk results are summed in chunk order — so a run's numbers depend on the seed
+and the photon count, never on the number of threads.
+"""
+from __future__ import annotations
+
+import math
+import os
+import sys
+import time
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .kernel import embree
+from .kernel.trace import N_COUNTERS, trace_chunk
+from .materials import sampling_tables
+from .geometry import triangle_normals
+
+CHUNK = 1 << 15
+
+
+@dataclass
+class Result:
+    """Sums over N traced photons.
+
+    ``tally`` (K, B): expected photon hits per tally row and band for the N
+    photons emitted (rows: sensors, receiver incident, receiver absorbed);
+    ``tally_sq`` the per-photon sums of squares.  ``fate`` (M + 3, B): weight
+    absorbed per material, escaped, cut at max depth, lost.
+    """
+
+    photons: int
+    tally: np.ndarray
+    tally_sq: np.ndarray
+    fate: np.ndarray
+    fate_sq: np.ndarray
+    counters: np.ndarray
+    seconds: float
+    threads: int
+    seed: int
+    n_sensors: int
+    n_receivers: int
+    partial: bool = False
+    extra: dict = field(default_factory=dict)
+
+    @staticmethod
+    def _std(total, sq, n):
+        if n < 2:
+            return np.full_like(total, np.nan)
+        var = n / (n - 1.0) * np.maximum(sq - total * total / n, 0.0)
+        return np.sqrt(var)
+
+    @property
+    def tally_std(self) -> np.ndarray:
+        """Standard error of each tally, (K, B)."""
+        return self._std(self.tally, self.tally_sq, self.photons)
+
+    @property
+    def fate_std(self) -> np.ndarray:
+        return self._std(self.fate, self.fate_sq, self.photons)
+
+    def sensors(self):
+        """(photons, photons_std) for the transparent sensors, each (S, B)."""
+        s = self.n_sensors
+        return self.tally[:s], self.tally_std[:s]
+
+    def receivers_incident(self):
+        s, r = self.n_sensors, self.n_receivers
+        return self.tally[s:s + r], self.tally_std[s:s + r]
+
+    def receivers_absorbed(self):
+        s, r = self.n_sensors, self.n_receivers
+        return self.tally[s + r:s + 2 * r], self.tally_std[s + r:s + 2 * r]
+
+    @property
+    def rays(self) -> int:
+        return int(self.counters[0])
+
+
+class KernelScene:
+    """A chamber turned into kernel arrays and an Embree scene (built once, reused by runs)."""
+
+    def __init__(self, chamber):
+        self.chamber = chamber
+        tris = chamber.triangles
+        area = 0.5 * np.linalg.norm(np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0]), axis=1)
+        keep = np.isfinite(tris).all(axis=(1, 2)) & (area > 0)
+        two = chamber.tri_two_sided & keep
+        one = ~chamber.tri_two_sided & keep
+        order = np.concatenate([np.flatnonzero(one), np.flatnonzero(two)])
+        self.dropped = int((~keep).sum())
+        self.order = order
+        self.geom_offset = np.array([0, one.sum(), 0], dtype=np.int64)
+        self.tri_normal = np.ascontiguousarray(triangle_normals(tris[order]))
+        self.tri_mat = np.ascontiguousarray(chamber.tri_material[order].astype(np.int32))
+        self.tri_receiver = np.ascontiguousarray(chamber.tri_receiver[order].astype(np.int32))
+        sensors = chamber.sensors
+        self.scene = embree.EmbreeScene(one_sided=tris[one], two_sided=tris[two],
+                                        sensors=sensors.bounding_triangles() if len(sensors) else None)
+        self.mat_prob, self.mat_cum, self.mat_phong = sampling_tables(chamber.materials, chamber.physics.specular)
+        self.sens = (np.ascontiguousarray(sensors.kind, dtype=np.int32), np.ascontiguousarray(sensors.center, float),
+                     np.ascontiguousarray(sensors.normal, float), np.ascontiguousarray(sensors.radius, float),
+                     np.ascontiguousarray(sensors.corners, float))
+        em = chamber.emitters
+        self.emit = (np.ascontiguousarray(em.kind, dtype=np.int32), np.ascontiguousarray(em.data, float),
+                     np.ascontiguousarray(em.cdf, float))
+        self.n_sensors = len(sensors)
+        self.n_receivers = len(chamber.receivers)
+        self.n_tallies = self.n_sensors + 2 * self.n_receivers
+        self.n_bands = chamber.n_bands
+        self.n_fates = len(chamber.materials) + 3
+        self.intersect = embree.intersect1_address()
+
+    def trace(self, seed: int, first: int, count: int):
+        """Trace one chunk; returns (tally, tally_sq, fate, fate_sq, counters)."""
+        K, B, F = self.n_tallies, self.n_bands, self.n_fates
+        out = (np.zeros((max(K, 1), B)), np.zeros((max(K, 1), B)), np.zeros((F, B)), np.zeros((F, B)),
+               np.zeros(N_COUNTERS, np.int64))
+        scratch = embree.new_scratch()
+        phys = self.chamber.physics
+        trace_chunk(self.scene.handle, self.intersect, scratch.ctypes.data, seed, first, count,
+                    self.geom_offset, self.tri_normal, self.tri_mat, self.tri_receiver,
+                    self.mat_prob, self.mat_cum, self.mat_phong, *self.sens, *self.emit,
+                    phys.max_depth, phys.offset, self.n_receivers, *out)
+        return out
+
+
+def default_threads() -> int:
+    return max(1, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1))
+
+
+def run(kscene: KernelScene, photons: int, seed: int = 1, threads: int | None = None, progress=None,
+        stop=None) -> Result:
+    """Trace ``photons`` photons over ``threads`` threads.
+
+    ``progress(done, total, seconds)`` is called as chunks finish;  ``stop()``
+    returning True ends the run early: the result then holds the chunks finished
+    so far (a prefix of the run, correctly normalised) and ``partial`` is True.
+    """
+    if photons < 1:
+        raise ValueError("photons must be >= 1")
+    threads = threads or default_threads()
+    K, B, F = kscene.n_tallies, kscene.n_bands, kscene.n_fates
+    acc = [np.zeros((max(K, 1), B)), np.zeros((max(K, 1), B)), np.zeros((F, B)), np.zeros((F, B)),
+           np.zeros(N_COUNTERS, np.int64)]
+    chunks = [(c * CHUNK, min(CHUNK, photons - c * CHUNK)) for c in range(math.ceil(photons / CHUNK))]
+    done = 0
+    partial = False
+    start = time.perf_counter()
+    window = 2 * threads
+    with ThreadPoolExecutor(max_workers=threads) as pool:
+        pending = []
+        next_chunk = 0
+        try:
+            while next_chunk < len(chunks) or pending:
+                while next_chunk < len(chunks) and len(pending) < window:
+                    first, count = chunks[next_chunk]
+                    pending.append((count, pool.submit(kscene.trace, seed, first, count)))
+                    next_chunk += 1
+                count, fut = pending.pop(0)
+                part = fut.result()
+                for a, p in zip(acc, part):
+                    a += p
+                done += count
+                if progress:
+                    progress(done, photons, time.perf_counter() - start)
+                if stop is not None and stop() and done < photons:
+                    partial = True
+                    break
+        except KeyboardInterrupt:
+            partial = True
+        finally:
+            for _, fut in pending:
+                fut.cancel()
+    seconds = time.perf_counter() - start
+    return Result(done, acc[0][:K], acc[1][:K], acc[2], acc[3], acc[4], seconds, threads, seed,
+                  kscene.n_sensors, kscene.n_receivers, partial=partial)
+
+
+def progress_printer(stream=sys.stderr, every: float = 2.0):
+    """A ``progress`` callback printing photons done, rate and time left every ``every`` seconds."""
+    last = [-every]
+
+    def show(done, total, seconds):
+        if seconds - last[0] < every and done < total:
+            return
+        last[0] = seconds
+        rate = done / seconds if seconds > 0 else 0.0
+        left = (total - done) / rate if rate > 0 else float("nan")
+        print("  %5.1f%%  %d/%d photons  %.3g photons/s  %.0f s left"
+              % (100.0 * done / total, done, total, rate, left), file=stream, flush=True)
+
+    return show
