@@ -1,0 +1,121 @@
+"""The ``lpy-light`` command line.
+
+    lpy-light run SCENE.toml [--photons N] [--seed S] [--threads T] --out DIR
+    lpy-light scenes                       # list the built-in scenes
+
+SCENE may be a path or the name of a built-in scene (``angers``,
+``angers-12bands``, ...).  Bad input exits with status 2 and one line
+``lpy-light: error: FILE:LINE: what was expected``; no results are written.
+"""
+from __future__ import annotations
+
+import argparse
+import logging
+import signal
+import sys
+import threading
+from pathlib import Path
+
+from .errors import InputError, LpyLightError
+
+DATA = Path(__file__).parent / "data"
+
+
+def builtin_scenes() -> dict:
+    return {p.stem: p for p in sorted(DATA.glob("*/*.toml"))}
+
+
+def resolve_scene(name: str) -> Path:
+    path = Path(name)
+    if path.exists():
+        return path
+    scenes = builtin_scenes()
+    if name in scenes:
+        return scenes[name]
+    raise InputError("scene file not found (built-in scenes: %s)" % ", ".join(scenes), name)
+
+
+def _count(text: str) -> int:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError("expected a number, got %r" % text) from None
+    if not value >= 1 or value != int(value) or value > 1e15:
+        raise argparse.ArgumentTypeError("expected a whole number >= 1, got %r" % text)
+    return int(value)
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="lpy-light", description="Light interception in a modelled growth chamber.")
+    sub = p.add_subparsers(dest="command", required=True)
+    r = sub.add_parser("run", help="trace photons through a scene and write sensors.csv and summary.json")
+    r.add_argument("scene", help="scene TOML file, or a built-in scene name (see 'lpy-light scenes')")
+    r.add_argument("--photons", type=_count, default=1_000_000, help="photons per band (default 1e6)")
+    r.add_argument("--seed", type=int, default=1, help="random seed (default 1); results depend on it alone")
+    r.add_argument("--threads", type=int, default=None, help="threads (default: all cores)")
+    r.add_argument("--out", required=True, help="output folder")
+    r.add_argument("--quiet", action="store_true", help="no progress lines")
+    sub.add_parser("scenes", help="list the built-in scenes")
+    return p
+
+
+def cmd_run(args) -> int:
+    from . import simulate, units
+    from .results import write_run
+    from .scene import load_scene
+
+    if args.threads is not None and args.threads < 1:
+        raise InputError("--threads must be >= 1")
+    path = resolve_scene(args.scene)
+    chamber = load_scene(path)
+    kscene = simulate.KernelScene(chamber)
+    stop = threading.Event()
+
+    def on_term(signum, frame):
+        stop.set()
+
+    old = signal.signal(signal.SIGTERM, on_term)
+    try:
+        if not args.quiet:
+            print("lpy-light: %s: %d triangles, %d sensors, %d band(s); tracing %d photons"
+                  % (path, len(chamber.triangles), len(chamber.sensors), chamber.n_bands, args.photons),
+                  file=sys.stderr)
+        result = simulate.run(kscene, args.photons, seed=args.seed, threads=args.threads,
+                              progress=None if args.quiet else simulate.progress_printer(),
+                              stop=stop.is_set)
+    finally:
+        signal.signal(signal.SIGTERM, old)
+    norm = None
+    if chamber.spectrum is not None and chamber.bands is not None and len(chamber.sensors):
+        photons, std = result.sensors()
+        norm = units.from_spectrum(photons, std, chamber.sensors.area * chamber.metres_per_unit ** 2,
+                                   chamber.spectrum, chamber.bands)
+    summary = write_run(args.out, chamber, result, norm)
+    if not args.quiet:
+        print("lpy-light: %d photons in %.2f s (%.3g photons/s)%s; results in %s"
+              % (result.photons, result.seconds, summary["photons_per_second"] or 0,
+                 " — PARTIAL (interrupted)" if result.partial else "", args.out), file=sys.stderr)
+    return 130 if result.partial else 0
+
+
+def main(argv=None) -> int:
+    logging.basicConfig(format="lpy-light: warning: %(message)s", level=logging.WARNING)
+    args = _parser().parse_args(argv)
+    try:
+        if args.command == "scenes":
+            for name, path in builtin_scenes().items():
+                print("%-22s %s" % (name, path))
+            return 0
+        if args.command == "run":
+            return cmd_run(args)
+    except LpyLightError as exc:
+        print("lpy-light: error: %s" % exc, file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("lpy-light: interrupted", file=sys.stderr)
+        return 130
+    return 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

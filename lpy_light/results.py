@@ -1,0 +1,154 @@
+"""Writing a run's results: ``sensors.csv``, ``receivers.csv``, ``summary.json``.
+
+Files are written to a temporary name and renamed into place, so a reader never
+sees a half-written file and a failed run leaves no results file behind.
+"""
+from __future__ import annotations
+
+import csv
+import io
+import json
+import os
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from . import units
+
+
+def atomic_write(path: Path, text: str):
+    path = Path(path)
+    fd, tmp = tempfile.mkstemp(prefix="." + path.name + ".", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w", newline="") as fh:
+            fh.write(text)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def energy_closure(chamber, result) -> dict:
+    """Per band: emitted = absorbed (per material) + escaped + cut + lost, with the residual's σ."""
+    N = result.photons
+    names = [m.name for m in chamber.materials]
+    out = {}
+    fate, fate_std = result.fate, result.fate_std
+    M = len(names)
+    for b, label in enumerate(chamber.band_labels):
+        absorbed = {}
+        for m, name in enumerate(names):
+            if fate[m, b] > 0:
+                absorbed[name] = absorbed.get(name, 0.0) + float(fate[m, b])
+        total = float(fate[:, b].sum())
+        out[label] = {
+            "emitted": N, "absorbed": absorbed, "absorbed_total": float(fate[:M, b].sum()),
+            "escaped": float(fate[M, b]), "cut_at_max_depth": float(fate[M + 1, b]),
+            "lost": float(fate[M + 2, b]), "accounted": total, "residual": N - total,
+            # the residual is a sum of per-photon (1 - final weight) terms; its σ bounds it
+            "residual_std": float(np.sqrt(max(0.0, (fate_std[:, b] ** 2).sum()))),
+        }
+    return out
+
+
+def sensor_table(chamber, result, norm=None) -> list:
+    """Rows of ``sensors.csv``: one per sensor and band."""
+    photons, std = result.sensors()
+    S = len(chamber.sensors)
+    if S == 0:
+        return []
+    area_m2 = chamber.sensors.area * chamber.metres_per_unit ** 2
+    value = vstd = None
+    if norm is not None:
+        value, vstd = units.ppfd(photons, std, area_m2, norm)
+    rows = []
+    for s in range(S):
+        c = chamber.sensors.center[s]
+        for b, label in enumerate(chamber.band_labels):
+            row = {"sensor": s, "band": label, "photons": photons[s, b], "photons_std": std[s, b],
+                   "x": c[0], "y": c[1], "z": c[2], "area_m2": area_m2[s]}
+            if value is not None:
+                row["ppfd"] = value[s, b]
+                row["ppfd_std"] = vstd[s, b]
+            rows.append(row)
+    return rows
+
+
+def derived_table(chamber, result, norm) -> list:
+    """Per sensor: PAR and R:FR (µmol m⁻² s⁻¹, ratio) when the bands allow them."""
+    if norm is None or chamber.bands is None:
+        return []
+    photons, std = result.sensors()
+    area_m2 = chamber.sensors.area * chamber.metres_per_unit ** 2
+    value, vstd = units.ppfd(photons, std, area_m2, norm)
+    par = units.par_columns(chamber.bands)
+    rfr, rfr_std = units.red_far_red(value, vstd, chamber.bands)
+    if par is None and rfr is None:
+        return []
+    rows = []
+    for s in range(len(value)):
+        row = {"sensor": s}
+        if par is not None:
+            row["par"] = value[s, par].sum()
+            row["par_std"] = np.sqrt((vstd[s, par] ** 2).sum())   # bands positively correlated: a lower bound
+        if rfr is not None:
+            row["r_fr"] = rfr[s]
+            row["r_fr_std"] = rfr_std[s]
+        rows.append(row)
+    return rows
+
+
+def receiver_table(chamber, result) -> list:
+    inc, inc_std = result.receivers_incident()
+    ab, ab_std = result.receivers_absorbed()
+    rows = []
+    for r, name in enumerate(chamber.receivers):
+        for b, label in enumerate(chamber.band_labels):
+            rows.append({"receiver": r, "name": name, "band": label, "incident": inc[r, b],
+                         "incident_std": inc_std[r, b], "absorbed": ab[r, b], "absorbed_std": ab_std[r, b],
+                         "area_m2": chamber.receiver_area[r] * chamber.metres_per_unit ** 2})
+    return rows
+
+
+def csv_text(rows) -> str:
+    buf = io.StringIO()
+    if rows:
+        writer = csv.DictWriter(buf, fieldnames=list(rows[0].keys()), lineterminator="\n")
+        writer.writeheader()
+        for row in rows:
+            writer.writerow({k: (repr(float(v)) if isinstance(v, (float, np.floating)) else v) for k, v in row.items()})
+    return buf.getvalue()
+
+
+def write_run(out_dir, chamber, result, norm=None, extra=None) -> dict:
+    """Write every results file of a run into ``out_dir``; return the summary dict."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    summary = {
+        "scene": chamber.source, "bands": chamber.band_labels, "unit": chamber.unit,
+        "photons": result.photons, "seed": result.seed, "threads": result.threads,
+        "seconds": result.seconds, "photons_per_second": result.photons / result.seconds if result.seconds else None,
+        "rays": result.rays, "rays_per_second": result.rays / result.seconds if result.seconds else None,
+        "partial": result.partial, "sensors": len(chamber.sensors), "receivers": len(chamber.receivers),
+        "triangles": int(len(chamber.triangles)), "emitters": int(len(chamber.emitters)),
+        "physics": vars(chamber.physics), "skipped": chamber.skipped,
+        "energy_closure": energy_closure(chamber, result),
+        "counters": {"candidate_overflows": int(result.counters[1]), "scratch_flushes": int(result.counters[2]),
+                     "lost": int(result.counters[3])},
+    }
+    if norm is not None:
+        summary["normalisation"] = {"how": norm.how, "scale": norm.scale.tolist(), "scale_std": norm.scale_std.tolist()}
+    if extra:
+        summary.update(extra)
+    files = {"sensors.csv": csv_text(sensor_table(chamber, result, norm))}
+    derived = derived_table(chamber, result, norm)
+    if derived:
+        files["sensors_derived.csv"] = csv_text(derived)
+    if chamber.receivers:
+        files["receivers.csv"] = csv_text(receiver_table(chamber, result))
+    for name, text in files.items():
+        atomic_write(out / name, text)
+    atomic_write(out / "summary.json", json.dumps(summary, indent=2, default=float) + "\n")
+    return summary
