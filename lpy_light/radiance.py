@@ -88,8 +88,8 @@ def parse_rad(text: str, name: str = "<string>") -> list:
     def take(what, start_line):
         nonlocal i
         if i >= n:
-            raise InputError("unexpected end of file: expected %s of the primitive starting here" % what,
-                             name, start_line)
+            raise InputError("unexpected end of file: expected %s of the primitive that starts at line %d"
+                             % (what, start_line), name, tokens[-1][1])
         tok, line = tokens[i]
         i += 1
         return tok, line

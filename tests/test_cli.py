@@ -1,0 +1,55 @@
+"""The command-line contract: lpy-light run SCENE --photons --seed --threads --out."""
+import csv
+import json
+import subprocess
+import sys
+
+import pytest
+
+from scenes import box, lamp_rectangle, write_scene
+
+RAD = ("void plastic wall\n0\n0\n5 0.5 0.5 0.5 0 0\n\nvoid light lamp\n0\n0\n3 10 10 10\n\n"
+       + box("wall", (0, 0, 0), (1000, 1000, 1100)) + lamp_rectangle("lamp", (500, 500), 100, 1000))
+SENSORS = [(300, 300, 400, 60, 0, 0, 1), (700, 650, 200, 60, 0, 0, -1)]
+
+
+def _run(*args):
+    return subprocess.run([sys.executable, "-m", "lpy_light", *map(str, args)], capture_output=True, text=True)
+
+
+def test_run_writes_sensors_and_summary(tmp_path):
+    scene = write_scene(tmp_path / "s", RAD, SENSORS)
+    out = tmp_path / "out"
+    p = _run("run", scene, "--photons", "5e4", "--seed", 3, "--threads", 2, "--out", out, "--quiet")
+    assert p.returncode == 0, p.stderr
+    rows = list(csv.DictReader(open(out / "sensors.csv")))
+    assert [r["sensor"] for r in rows] == ["0", "1"] and {r["band"] for r in rows} == {"rad"}
+    assert float(rows[0]["photons"]) > 0 and float(rows[0]["photons_std"]) > 0
+    summary = json.load(open(out / "summary.json"))
+    assert summary["photons"] == 50000 and summary["seconds"] > 0
+    closure = summary["energy_closure"]["rad"]
+    assert closure["residual"] == pytest.approx(0, abs=1e-6)
+    assert closure["absorbed"]["wall"] > 0 and closure["escaped"] == 0
+    # same seed, other thread count: identical file
+    p2 = _run("run", scene, "--photons", "5e4", "--seed", 3, "--threads", 1, "--out", tmp_path / "o2", "--quiet")
+    assert p2.returncode == 0
+    assert (tmp_path / "o2" / "sensors.csv").read_text() == (out / "sensors.csv").read_text()
+
+
+@pytest.mark.parametrize("mutate, where", [
+    (lambda d: (d / "scene.rad").write_text(RAD.replace("5 0.5 0.5 0.5 0 0", "5 0.5 0.5 oops 0 0")), "scene.rad:4"),
+    (lambda d: (d / "sensors.csv").write_text("X,Y,Z,rayon_capteur,Xnorm,Ynorm,Znorm\n1,2,3,4,0,0\n"), "sensors.csv:2"),
+    (lambda d: (d / "scene.toml").write_text('geometry = "scene.rad"\nbands = [[700, 600]]\n'), "scene.toml:2"),
+    (lambda d: (d / "scene.toml").write_text('geometry = "missing.rad"\n'), "scene.toml:1"),
+])
+def test_bad_input_one_line_no_traceback_no_results(tmp_path, mutate, where):
+    d = tmp_path / "s"
+    write_scene(d, RAD, SENSORS)
+    mutate(d)
+    out = tmp_path / "out"
+    p = _run("run", d / "scene.toml", "--photons", 1000, "--out", out, "--quiet")
+    assert p.returncode == 2
+    lines = [line for line in p.stderr.splitlines() if "warning" not in line]
+    assert len(lines) == 1 and "Traceback" not in p.stderr, p.stderr
+    assert where in lines[0] and lines[0].startswith("lpy-light: error:")
+    assert not out.exists() or not any(out.iterdir())

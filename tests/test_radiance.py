@@ -1,0 +1,68 @@
+"""The Radiance reader: tokens as Radiance reads them, errors that name file and line."""
+import pytest
+
+from lpy_light.errors import InputError
+from lpy_light.radiance import parse_rad, read_rad
+from lpy_light.scene import build_chamber
+
+
+def test_angers_reads_to_130_primitives(angers_dir):
+    prims = read_rad(angers_dir / "geometry/testChamber.rad")
+    assert len(prims) == 130
+    assert sum(p.type in ("plastic", "metal", "trans", "light", "x") for p in prims) == 26
+    assert sum(p.type in ("polygon", "cylinder") for p in prims) == 104
+    for name in ("refcaissonY0n", "refcaissonY0a"):
+        copies = [p for p in prims if p.identifier == name]
+        assert len(copies) == 2 and copies[0].reals != copies[1].reals   # two different real walls
+    chamber = build_chamber(prims)
+    kept = [s[0] for s in chamber.surfaces]
+    assert kept.count("refcaissonY0n") == 2 and kept.count("refcaissonY0a") == 2
+    assert len(chamber.emitters) == 4 and len(chamber.skipped) == 1 and ":144:" in chamber.skipped[0]
+
+
+def test_tokens_not_lines():
+    text = "void plastic red 0 0 5 .5 .1 .1 0 0  # a comment\nred polygon p 0 0 9 0 0 0 1 0 0\n 1 1 0 #x\n"
+    prims = parse_rad(text)
+    assert [p.identifier for p in prims] == ["red", "p"]
+    assert prims[1].reals == [0, 0, 0, 1, 0, 0, 1, 1, 0]
+    assert prims[1].line == 2
+
+
+@pytest.mark.parametrize("text, line, words", [
+    ("void plastic a\n0\n0\n5 1 2 3\n", 4, "end of file"),
+    ("void plastic a\nx\n0\n5 1 2 3 4 5\n", 2, "number of string"),
+    ("void plastic a\n0\n0\n5 1 2 zz 4 5\n", 4, "real number"),
+    ("void plastic a\n0\n0\n5 1 2 nan 4 5\n", 4, "not finite"),
+    ("!xform -t 1 0 0 x.rad\n", 1, "inline commands"),
+])
+def test_syntax_errors_name_the_line(text, line, words):
+    with pytest.raises(InputError) as info:
+        parse_rad(text, "bad.rad")
+    assert info.value.line == line and words in str(info.value) and str(info.value).startswith("bad.rad:%d:" % line)
+
+
+def test_semantic_errors_name_the_line():
+    lamp = "void light l 0 0 3 1 1 1\nl polygon lp 0 0 9 0 0 1 1 0 1 1 1 1\n"
+    with pytest.raises(InputError, match=r"s.rad:3: .*undefined modifier 'nope'"):
+        build_chamber(parse_rad(lamp + "nope polygon p 0 0 9 0 0 0 1 0 0 1 1 0\n", "s.rad"))
+    with pytest.raises(InputError, match=r"s.rad:3: .*needs 3·n reals"):
+        build_chamber(parse_rad(lamp + "l polygon p 0 0 6 0 0 0 1 0 0\n", "s.rad"))
+    with pytest.raises(InputError, match=r"s.rad:3: .*not supported"):
+        build_chamber(parse_rad(lamp + "void glass g 0 0 3 1 1 1\n", "s.rad"))
+    with pytest.raises(InputError, match=r"s.rad:4: .*skipped \(s.rad:3\)"):
+        build_chamber(parse_rad(lamp + "void x q 0 0 3 1 1 1\nq polygon p 0 0 9 0 0 0 1 0 0 1 1 0\n", "s.rad"))
+    with pytest.raises(InputError, match=r"s.rad:3: .*not energy-conserving"):
+        build_chamber(parse_rad(lamp + "void trans t 0 0 7 .6 .6 .6 0 0 .6 0\n", "s.rad"))
+    with pytest.raises(InputError, match="no light source"):
+        build_chamber(parse_rad("void plastic a 0 0 5 1 1 1 0 0\na polygon p 0 0 9 0 0 0 1 0 0 1 1 0\n", "s.rad"))
+
+
+def test_concave_polygon_keeps_area_and_winding():
+    import numpy as np
+    from lpy_light.geometry import triangle_areas, triangulate_polygon, triangle_normals
+    L = [(0, 0, 0), (2, 0, 0), (2, 1, 0), (1, 1, 0), (1, 2, 0), (0, 2, 0)]   # L-shape, area 3
+    tris = triangulate_polygon(L)
+    assert triangle_areas(tris).sum() == pytest.approx(3)
+    np.testing.assert_allclose(triangle_normals(tris), [[0, 0, 1]] * len(tris))
+    tris = triangulate_polygon(L[::-1])
+    np.testing.assert_allclose(triangle_normals(tris), [[0, 0, -1]] * len(tris))

@@ -1,0 +1,98 @@
+"""χ² tests: each direction sampler draws from the pdf it claims (pbrt-style).
+
+Directions are binned in (cos θ, φ) about the lobe axis; expected counts come from
+integrating the claimed pdf over each bin.  A sampler paired with the wrong pdf
+must fail the same test (so the test has power).
+"""
+import math
+
+import numpy as np
+import pytest
+from numba import njit
+
+from lpy_light.kernel import sampling as smp
+from lpy_light.kernel.rng import new_state, seed_stream, uniform
+
+N = 200_000
+AXIS = np.array([0.3, -0.5, 0.8]) / np.linalg.norm([0.3, -0.5, 0.8])
+
+
+@njit(cache=True)
+def _draw(kind, ax, ay, az, exponent, n, seed):
+    out = np.empty((n, 3))
+    state = np.zeros(1, dtype=np.uint64)
+    for i in range(n):
+        seed_stream(state, seed, i)
+        u1, u2 = uniform(state), uniform(state)
+        if kind == 0:
+            d = smp.cosine_hemisphere(ax, ay, az, u1, u2)
+        elif kind == 1:
+            d = smp.uniform_sphere(u1, u2)
+        else:
+            d = smp.phong_lobe(ax, ay, az, exponent, u1, u2)
+        out[i, 0], out[i, 1], out[i, 2] = d[0], d[1], d[2]
+    return out
+
+
+def _chi2_pvalue(chi2, dof):
+    """Upper tail of χ²(dof) by the Wilson–Hilferty normal approximation."""
+    z = ((chi2 / dof) ** (1 / 3) - (1 - 2 / (9 * dof))) / math.sqrt(2 / (9 * dof))
+    return 0.5 * math.erfc(z / math.sqrt(2))
+
+
+def _chi2(dirs, axis, cdf_cos, n_theta=20, n_phi=12, cos_range=(0.0, 1.0)):
+    """χ² of directions against a pdf given by the CDF of cos θ (φ uniform)."""
+    t, b = smp.frame(*axis)
+    c = dirs @ axis
+    phi = np.arctan2(dirs @ np.array(b), dirs @ np.array(t)) % (2 * np.pi)
+    edges = np.linspace(*cos_range, n_theta + 1)
+    counts, _, _ = np.histogram2d(c, phi, bins=[edges, np.linspace(0, 2 * np.pi, n_phi + 1)])
+    p = np.diff([cdf_cos(e) for e in edges]) / n_phi
+    expected = len(dirs) * np.repeat(p[:, None], n_phi, axis=1)
+    ok = expected > 5
+    chi2 = (((counts - expected) ** 2)[ok] / expected[ok]).sum()
+    return _chi2_pvalue(chi2, ok.sum() - 1)
+
+
+def test_cosine_hemisphere():
+    d = _draw(0, *AXIS, 0.0, N, 1)
+    np.testing.assert_allclose(np.linalg.norm(d, axis=1), 1, atol=1e-12)
+    assert (d @ AXIS >= 0).all()
+    assert _chi2(d, AXIS, lambda c: c * c) > 1e-3            # P(cos θ < c) = c² for pdf cos θ/π
+    assert _chi2(d, AXIS, lambda c: c) < 1e-6                # the uniform-hemisphere pdf is rejected
+
+
+def test_uniform_sphere():
+    d = _draw(1, *AXIS, 0.0, N, 2)
+    assert _chi2(d, AXIS, lambda c: (c + 1) / 2, cos_range=(-1, 1)) > 1e-3
+    assert _chi2(d, AXIS, lambda c: ((c + 1) / 2) ** 1.1, cos_range=(-1, 1)) < 1e-6
+
+
+@pytest.mark.parametrize("exponent", [1.0, 10.0, 200.0])
+def test_phong_lobe(exponent):
+    d = _draw(2, *AXIS, exponent, N, 3)
+    lo = 0.0 if exponent < 50 else 0.9
+    cdf = lambda c: (max(c, 0) ** (exponent + 1) - lo ** (exponent + 1)) / (1 - lo ** (exponent + 1))
+    sel = d @ AXIS >= lo
+    assert _chi2(d[sel], AXIS, cdf, cos_range=(lo, 1)) > 1e-3
+    e2 = 1.2 * exponent + 1       # a lobe 20 % too narrow
+    wrong = lambda c: (max(c, 0) ** (e2 + 1) - lo ** (e2 + 1)) / (1 - lo ** (e2 + 1))
+    assert _chi2(d[sel], AXIS, wrong, cos_range=(lo, 1)) < 1e-6
+
+
+def test_pdfs_integrate_to_one():
+    """The documented pdfs integrate to 1 over their domains (midpoint rule in cos θ)."""
+    c = (np.arange(20000) + 0.5) / 20000
+    assert np.sum(c / math.pi) * 2 * math.pi / 20000 == pytest.approx(1, rel=1e-6)
+    for e in (1.0, 10.0, 200.0):
+        assert np.sum((e + 1) / (2 * math.pi) * c ** e) * 2 * math.pi / 20000 == pytest.approx(1, rel=1e-3)
+
+
+def test_mirror_reflection():
+    d = np.array(smp.mirror(0.6, 0.0, -0.8, 0.0, 0.0, 1.0))
+    np.testing.assert_allclose(d, [0.6, 0.0, 0.8])
+
+
+def test_phong_exponent_follows_roughness():
+    assert smp.phong_exponent(0) == math.inf
+    assert smp.phong_exponent(0.1) > smp.phong_exponent(0.3) > 0
