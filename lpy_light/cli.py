@@ -54,6 +54,9 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--seed", type=int, default=1, help="random seed (default 1); results depend on it alone")
     r.add_argument("--threads", type=int, default=None, help="threads (default: all cores)")
     r.add_argument("--out", required=True, help="output folder")
+    r.add_argument("--estimator", choices=("weighted", "analog"), default="weighted",
+                   help="weighted (default: expected absorption, bands share events without any weight "
+                        "growing) or analog (SEC2's counting: one photon, one event)")
     r.add_argument("--quiet", action="store_true", help="no progress lines")
     sub.add_parser("scenes", help="list the built-in scenes")
     return p
@@ -68,7 +71,7 @@ def cmd_run(args) -> int:
         raise InputError("--threads must be >= 1")
     path = resolve_scene(args.scene)
     chamber = load_scene(path)
-    kscene = simulate.KernelScene(chamber)
+    kscene = simulate.KernelScene(chamber, estimator=args.estimator)
     stop = threading.Event()
 
     def on_term(signum, frame):

@@ -101,15 +101,35 @@ def black(n_bands: int, name: str = "black") -> Material:
     return Material(name, "plastic", e)
 
 
-def sampling_tables(materials, specular: str = "mirror"):
-    """Arrays the kernel needs: ``prob`` (M, 5, B), ``cum`` (M, 5) cumulative band-averaged
-    probabilities, ``phong`` (M,) lobe exponents (inf = perfect mirror)."""
+ESTIMATORS = ("weighted", "analog")
+
+
+def sampling_tables(materials, specular: str = "mirror", estimator: str = "weighted"):
+    """Arrays the kernel needs: ``prob`` (M, 5, B) event probabilities per band,
+    ``cum`` (M, 5) cumulative probabilities q of the event drawn (shared by the
+    bands; the last slot, "absorb", takes the rest), ``phong`` (M,) lobe
+    exponents (inf = perfect mirror).
+
+    ``analog``: q_e is the band mean of P_e,b over all five events (for one band,
+    SEC2's own counting).  ``weighted``: q_e = max_b P_e,b over the four
+    scattering events (scaled down if they sum above 1), so that the weight
+    factor P_e,b / q_e never exceeds 1; absorption is deposited as an expected
+    value by the kernel.
+    """
     from .kernel.sampling import phong_exponent
 
+    if estimator not in ESTIMATORS:
+        raise ValueError("estimator must be one of %s, not %r" % (", ".join(ESTIMATORS), estimator))
     prob = np.stack([m.events for m in materials])
-    mean = prob.mean(axis=2)
-    cum = np.cumsum(mean, axis=1)
-    cum[:, -1] = 1.0 + 1e-12   # absorption takes the rest, whatever the rounding
+    if estimator == "analog":
+        q = prob.mean(axis=2)
+    else:
+        q = prob.max(axis=2)
+        q[:, ABSORB] = 0.0
+        over = q.sum(axis=1, keepdims=True)
+        q = np.where(over > 1.0, q / np.maximum(over, 1e-300), q)
+    cum = np.cumsum(q, axis=1)
+    cum[:, -1] = 1.0 + 1e-12   # the last event takes the rest, whatever the rounding
     if specular == "phong":
         phong = np.array([phong_exponent(m.roughness) for m in materials])
     else:

@@ -35,20 +35,22 @@ def energy_closure(chamber, result) -> dict:
     N = result.photons
     names = [m.name for m in chamber.materials]
     out = {}
-    fate, fate_std = result.fate, result.fate_std
+    fate = result.fate
+    accounted, accounted_std = result.closure
     M = len(names)
     for b, label in enumerate(chamber.band_labels):
         absorbed = {}
         for m, name in enumerate(names):
             if fate[m, b] > 0:
                 absorbed[name] = absorbed.get(name, 0.0) + float(fate[m, b])
-        total = float(fate[:, b].sum())
+        total = float(accounted[b])
         out[label] = {
             "emitted": N, "absorbed": absorbed, "absorbed_total": float(fate[:M, b].sum()),
             "escaped": float(fate[M, b]), "cut_at_max_depth": float(fate[M + 1, b]),
             "lost": float(fate[M + 2, b]), "accounted": total, "residual": N - total,
-            # the residual is a sum of per-photon (1 - final weight) terms; its σ bounds it
-            "residual_std": float(np.sqrt(max(0.0, (fate_std[:, b] ** 2).sum()))),
+            # the residual is a sum of per-photon (1 - total deposit) terms: zero for the
+            # analog estimator with one band, zero within residual_std otherwise
+            "residual_std": float(accounted_std[b]),
         }
     return out
 
@@ -131,7 +133,7 @@ def write_run(out_dir, chamber, result, norm=None, extra=None) -> dict:
         "photons": result.photons, "seed": result.seed, "threads": result.threads,
         "seconds": result.seconds, "photons_per_second": result.photons / result.seconds if result.seconds else None,
         "rays": result.rays, "rays_per_second": result.rays / result.seconds if result.seconds else None,
-        "partial": result.partial, "sensors": len(chamber.sensors), "receivers": len(chamber.receivers),
+        "estimator": result.estimator, "partial": result.partial, "sensors": len(chamber.sensors), "receivers": len(chamber.receivers),
         "triangles": int(len(chamber.triangles)), "emitters": int(len(chamber.emitters)),
         "physics": vars(chamber.physics), "skipped": chamber.skipped,
         "energy_closure": energy_closure(chamber, result),

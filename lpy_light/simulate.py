@@ -28,25 +28,43 @@ CHUNK = 1 << 15
 class Result:
     """Sums over N traced photons.
 
-    ``tally`` (K, B): expected photon hits per tally row and band for the N
-    photons emitted (rows: sensors, receiver incident, receiver absorbed);
-    ``tally_sq`` the per-photon sums of squares.  ``fate`` (M + 3, B): weight
-    absorbed per material, escaped, cut at max depth, lost.
+    ``tally`` (K + M + 4, B): expected photon hits per row and band for the N
+    photons emitted — rows: S sensors, R receiver incident, R receiver
+    absorbed, then the fates: M materials (absorbed), escaped, cut at max
+    depth, lost, and the per-photon total (closure: N in expectation);
+    ``tally_sq`` the sums of squared per-photon contributions.
     """
 
     photons: int
     tally: np.ndarray
     tally_sq: np.ndarray
-    fate: np.ndarray
-    fate_sq: np.ndarray
     counters: np.ndarray
     seconds: float
     threads: int
     seed: int
     n_sensors: int
     n_receivers: int
+    estimator: str = "weighted"
     partial: bool = False
     extra: dict = field(default_factory=dict)
+
+    @property
+    def _fate0(self) -> int:
+        return self.n_sensors + 2 * self.n_receivers
+
+    @property
+    def fate(self) -> np.ndarray:
+        """(M + 3, B) weight absorbed per material, escaped, cut at max depth, lost."""
+        return self.tally[self._fate0:-1]
+
+    @property
+    def fate_std(self) -> np.ndarray:
+        return self.tally_std[self._fate0:-1]
+
+    @property
+    def closure(self):
+        """(accounted, std): per band, the photons' total deposits (N in expectation), each (B,)."""
+        return self.tally[-1], self.tally_std[-1]
 
     @staticmethod
     def _std(total, sq, n):
@@ -59,10 +77,6 @@ class Result:
     def tally_std(self) -> np.ndarray:
         """Standard error of each tally, (K, B)."""
         return self._std(self.tally, self.tally_sq, self.photons)
-
-    @property
-    def fate_std(self) -> np.ndarray:
-        return self._std(self.fate, self.fate_sq, self.photons)
 
     def sensors(self):
         """(photons, photons_std) for the transparent sensors, each (S, B)."""
@@ -85,8 +99,9 @@ class Result:
 class KernelScene:
     """A chamber turned into kernel arrays and an Embree scene (built once, reused by runs)."""
 
-    def __init__(self, chamber):
+    def __init__(self, chamber, estimator: str = "weighted"):
         self.chamber = chamber
+        self.estimator = estimator
         tris = chamber.triangles
         area = 0.5 * np.linalg.norm(np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0]), axis=1)
         keep = np.isfinite(tris).all(axis=(1, 2)) & (area > 0)
@@ -102,7 +117,8 @@ class KernelScene:
         sensors = chamber.sensors
         self.scene = embree.EmbreeScene(one_sided=tris[one], two_sided=tris[two],
                                         sensors=sensors.bounding_triangles() if len(sensors) else None)
-        self.mat_prob, self.mat_cum, self.mat_phong = sampling_tables(chamber.materials, chamber.physics.specular)
+        self.mat_prob, self.mat_cum, self.mat_phong = sampling_tables(chamber.materials, chamber.physics.specular,
+                                                                        estimator)
         self.sens = (np.ascontiguousarray(sensors.kind, dtype=np.int32), np.ascontiguousarray(sensors.center, float),
                      np.ascontiguousarray(sensors.normal, float), np.ascontiguousarray(sensors.radius, float),
                      np.ascontiguousarray(sensors.corners, float))
@@ -111,22 +127,20 @@ class KernelScene:
                      np.ascontiguousarray(em.cdf, float))
         self.n_sensors = len(sensors)
         self.n_receivers = len(chamber.receivers)
-        self.n_tallies = self.n_sensors + 2 * self.n_receivers
         self.n_bands = chamber.n_bands
-        self.n_fates = len(chamber.materials) + 3
+        self.n_rows = self.n_sensors + 2 * self.n_receivers + len(chamber.materials) + 4
         self.intersect = embree.intersect1_address()
 
     def trace(self, seed: int, first: int, count: int):
-        """Trace one chunk; returns (tally, tally_sq, fate, fate_sq, counters)."""
-        K, B, F = self.n_tallies, self.n_bands, self.n_fates
-        out = (np.zeros((max(K, 1), B)), np.zeros((max(K, 1), B)), np.zeros((F, B)), np.zeros((F, B)),
+        """Trace one chunk; returns (tally, tally_sq, counters)."""
+        out = (np.zeros((self.n_rows, self.n_bands)), np.zeros((self.n_rows, self.n_bands)),
                np.zeros(N_COUNTERS, np.int64))
         scratch = embree.new_scratch()
         phys = self.chamber.physics
         trace_chunk(self.scene.handle, self.intersect, scratch.ctypes.data, seed, first, count,
                     self.geom_offset, self.tri_normal, self.tri_mat, self.tri_receiver,
                     self.mat_prob, self.mat_cum, self.mat_phong, *self.sens, *self.emit,
-                    phys.max_depth, phys.offset, self.n_receivers, *out)
+                    phys.max_depth, phys.offset, self.n_receivers, self.estimator == "weighted", *out)
         return out
 
 
@@ -145,8 +159,7 @@ def run(kscene: KernelScene, photons: int, seed: int = 1, threads: int | None = 
     if photons < 1:
         raise ValueError("photons must be >= 1")
     threads = threads or default_threads()
-    K, B, F = kscene.n_tallies, kscene.n_bands, kscene.n_fates
-    acc = [np.zeros((max(K, 1), B)), np.zeros((max(K, 1), B)), np.zeros((F, B)), np.zeros((F, B)),
+    acc = [np.zeros((kscene.n_rows, kscene.n_bands)), np.zeros((kscene.n_rows, kscene.n_bands)),
            np.zeros(N_COUNTERS, np.int64)]
     chunks = [(c * CHUNK, min(CHUNK, photons - c * CHUNK)) for c in range(math.ceil(photons / CHUNK))]
     done = 0
@@ -178,8 +191,8 @@ def run(kscene: KernelScene, photons: int, seed: int = 1, threads: int | None = 
             for _, fut in pending:
                 fut.cancel()
     seconds = time.perf_counter() - start
-    return Result(done, acc[0][:K], acc[1][:K], acc[2], acc[3], acc[4], seconds, threads, seed,
-                  kscene.n_sensors, kscene.n_receivers, partial=partial)
+    return Result(done, acc[0], acc[1], acc[2], seconds, threads, seed, kscene.n_sensors, kscene.n_receivers,
+                  estimator=kscene.estimator, partial=partial)
 
 
 def progress_printer(stream=sys.stderr, every: float = 2.0):
