@@ -16,6 +16,9 @@ id    name                behaviour
 1     ``two_sided``       triangles hit from both sides (leaves, opt-in)
 2     ``sensors``         bounding quads of transparent sensors; every
                           crossing is recorded and the ray goes on
+3     ``organs``          the plant: two-sided triangles, replaced between
+                          growth steps (:meth:`EmbreeScene.set_organs`)
+                          while the chamber's geometries stay built
 ====  ==================  ===================================================
 """
 from __future__ import annotations
@@ -29,7 +32,7 @@ from numba import cfunc, types
 
 from .ptr import load_f32, load_i64, load_u32, load_u64, store_f32, store_i32, store_i64, store_u32
 
-GEOM_ONE_SIDED, GEOM_TWO_SIDED, GEOM_SENSORS = 0, 1, 2
+GEOM_ONE_SIDED, GEOM_TWO_SIDED, GEOM_SENSORS, GEOM_ORGANS = 0, 1, 2, 3
 INVALID_ID = 0xFFFFFFFF
 
 # --- byte layout of one thread's scratch block (see trace.py) ---------------------------
@@ -82,8 +85,10 @@ def _bind():
         "rtcNewGeometry": (p, [p, i32]),
         "rtcSetNewGeometryBuffer": (p, [p, i32, u32, i32, sz, sz]),
         "rtcSetGeometryIntersectFilterFunction": (None, [p, p]),
+        "rtcSetGeometryOccludedFilterFunction": (None, [p, p]),
         "rtcCommitGeometry": (None, [p]),
         "rtcAttachGeometryByID": (None, [p, p, u32]),
+        "rtcDetachGeometry": (None, [p, u32]),
         "rtcReleaseGeometry": (None, [p]),
     }
     for name, (res, args) in sigs.items():
@@ -105,6 +110,14 @@ def lib():
 def intersect1_address() -> int:
     """Address of ``rtcIntersect1(scene, rayhit*, args*)`` for :func:`kernel.ptr.call_ptr3`."""
     return ctypes.cast(lib().rtcIntersect1, ctypes.c_void_p).value
+
+
+def occluded1_address() -> int:
+    """Address of ``rtcOccluded1(scene, ray*, args*)`` (shadow rays; ``tfar`` becomes -inf when blocked).
+
+    ``RTCOccludedArguments`` starts like ``RTCIntersectArguments`` (flags,
+    feature mask, context), so one scratch block serves both calls."""
+    return ctypes.cast(lib().rtcOccluded1, ctypes.c_void_p).value
 
 
 # --- filter callbacks (C ABI, compiled once and cached) -----------------------------------
@@ -137,7 +150,7 @@ def _record_sensor_crossing(args):
 
 
 class EmbreeScene:
-    """A committed Embree scene of up to three triangle geometries (see module doc).
+    """A committed Embree scene of up to four triangle geometries (see module doc).
 
     Parameters
     ----------
@@ -159,10 +172,25 @@ class EmbreeScene:
         for gid, tris in ((GEOM_ONE_SIDED, one_sided), (GEOM_TWO_SIDED, two_sided), (GEOM_SENSORS, sensors)):
             if tris is not None and len(tris):
                 self._attach(gid, np.asarray(tris, dtype=np.float64), filters[gid])
+        self._has_organs = False
+        self._commit()
+
+    def _commit(self):
+        L = lib()
         L.rtcCommitScene(self._scene)
         err = L.rtcGetDeviceError(self._device)
         if err:
             raise RuntimeError("Embree error %d while building the scene" % err)
+
+    def set_organs(self, tris):
+        """Replace the organ geometry (id 3) by ``tris`` (n, 3, 3) and recommit; the rest is kept."""
+        if self._has_organs:
+            lib().rtcDetachGeometry(self._scene, GEOM_ORGANS)
+            self._has_organs = False
+        if tris is not None and len(tris):
+            self._attach(GEOM_ORGANS, np.asarray(tris, dtype=np.float64), None)
+            self._has_organs = True
+        self._commit()
 
     def _attach(self, gid, tris, filter_address):
         L = lib()
@@ -177,6 +205,7 @@ class EmbreeScene:
         np.ctypeslib.as_array((ctypes.c_uint32 * (3 * n)).from_address(ibuf))[:] = np.arange(3 * n, dtype=np.uint32)
         if filter_address is not None:
             L.rtcSetGeometryIntersectFilterFunction(geom, filter_address)
+            L.rtcSetGeometryOccludedFilterFunction(geom, filter_address)
         L.rtcCommitGeometry(geom)
         L.rtcAttachGeometryByID(self._scene, geom, gid)
         L.rtcReleaseGeometry(geom)

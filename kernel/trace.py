@@ -41,6 +41,7 @@ from .embree import (ARGS, CAND, CAND_CAP, CAND_COUNT, DIR, GEOM_ID, INVALID_ID,
                      RAYHIT, TFAR, TNEAR)
 from .ptr import call_ptr3, load_f32, load_i64, load_u32, store_f32, store_i64, store_u32
 from .rng import seed_stream, uniform
+from .nee import V_ISOTROPIC, V_LAMBERT, V_SURFACE, next_event
 from .sampling import cosine_hemisphere, mirror, phong_lobe, to_world, uniform_sphere
 
 # scattering events, in the order their probabilities are accumulated
@@ -54,8 +55,8 @@ EMIT_LINE, EMIT_TRIANGLE, EMIT_CYLINDER, EMIT_POINT, EMIT_SPHERE = 0, 1, 2, 3, 4
 SENSOR_DISC, SENSOR_QUAD = 0, 1
 
 # counters
-C_RAYS, C_CAND_OVERFLOW, C_SCRATCH_FLUSH, C_LOST = 0, 1, 2, 3
-N_COUNTERS = 4
+C_RAYS, C_CAND_OVERFLOW, C_SCRATCH_FLUSH, C_LOST, C_SHADOW = 0, 1, 2, 3, 4
+N_COUNTERS = 5
 
 HIT_CAP = 256          # per-photon tally events kept before a flush
 _TFAR_MAX = 3.0e38
@@ -141,7 +142,7 @@ def _emit(e, kind, data, state, offset_rel):
         oy = data[e, 0, 1] + f * (data[e, 1, 1] - data[e, 0, 1])
         oz = data[e, 0, 2] + f * (data[e, 1, 2] - data[e, 0, 2])
         dx, dy, dz = uniform_sphere(u2, u3)
-        return ox, oy, oz, dx, dy, dz
+        return ox, oy, oz, dx, dy, dz, 0.0, 0.0, 1.0, V_ISOTROPIC
     if k == EMIT_TRIANGLE:
         su = math.sqrt(u1)
         b0, b1 = 1.0 - su, u2 * su
@@ -168,7 +169,7 @@ def _emit(e, kind, data, state, offset_rel):
     nx, ny, nz = nx * inv, ny * inv, nz * inv
     dx, dy, dz = cosine_hemisphere(nx, ny, nz, u3, u4)
     eps = offset_rel * max(abs(ox), abs(oy), abs(oz), 1e-30)
-    return ox + eps * nx, oy + eps * ny, oz + eps * nz, dx, dy, dz
+    return ox + eps * nx, oy + eps * ny, oz + eps * nz, dx, dy, dz, nx, ny, nz, V_LAMBERT
 
 
 @njit(nogil=True, cache=True)
@@ -178,6 +179,8 @@ def trace_chunk(scene, intersect_fn, scratch, seed, first, count,
                 sens_kind, sens_center, sens_normal, sens_radius, sens_corners,
                 emit_kind, emit_data, emit_cdf,
                 max_depth, offset_rel, n_receivers, expected_absorption,
+                occluded_fn, nee_sensors, nee_receivers, tgt_kind, tgt_row, tgt_abs_row, tgt_ref, tgt_first,
+                tgt_count, tgt_area, nee_tri, nee_cdf, tri_verts,
                 tally, tally_sq, counters):
     """Trace photons ``first .. first+count-1``; add what they do to the output arrays.
 
@@ -205,6 +208,13 @@ def trace_chunk(scene, intersect_fn, scratch, seed, first, count,
     max_depth : int, scattering events allowed before a photon is cut.
     offset_rel : float, ray offset relative to the coordinates' magnitude.
     expected_absorption : bool, the ``weighted`` estimator (True) or ``analog``.
+    occluded_fn : int, address of ``rtcOccluded1`` (next-event shadow rays).
+    nee_sensors, nee_receivers : bool, whether sensors / receivers are
+        next-event targets (:mod:`kernel.nee`); their crossings and hits after
+        diffuse vertices are then not counted, the targets' expected values are.
+    tgt_*, nee_tri, nee_cdf : next-event targets (:func:`kernel.nee.build_targets`);
+        empty arrays for none.
+    tri_verts : (T, 3, 3) float64, triangle vertices (to sample points on receivers).
     tally, tally_sq : (K + M + 4, B) float64, expected hits and sum of squared
         per-photon contributions: rows [0, S) sensor crossings, [S, S+R)
         receiver incident, [S+R, K) receiver absorbed, then fates from row K:
@@ -221,6 +231,10 @@ def trace_chunk(scene, intersect_fn, scratch, seed, first, count,
     state = np.zeros(1, dtype=np.uint64)
     w = np.empty(n_bands)
     dep = np.empty(n_bands)
+    n_tgt = tgt_kind.shape[0]
+    contrib = np.empty(n_bands)
+    out_k = np.empty(2 * n_tgt + 1, dtype=np.int64)
+    out_w = np.empty((2 * n_tgt + 1, n_bands))
     hit_k = np.empty(HIT_CAP, dtype=np.int64)
     hit_w = np.empty((HIT_CAP, n_bands))
     seen = np.empty(CAND_CAP, dtype=np.int64)
@@ -231,11 +245,22 @@ def trace_chunk(scene, intersect_fn, scratch, seed, first, count,
     for i in range(count):
         seed_stream(state, seed, first + i)
         e = _binary_search(emit_cdf, (i + uniform(state)) / count)
-        ox, oy, oz, dx, dy, dz = _emit(e, emit_kind, emit_data, state, offset_rel)
+        ox, oy, oz, dx, dy, dz, enx, eny, enz, emode = _emit(e, emit_kind, emit_data, state, offset_rel)
         w[:] = 1.0
         nh = 0
         depth = 0
+        after_diffuse = False   # does the current segment start at a next-event vertex?
+        if n_tgt > 0:
+            n_out = next_event(ox, oy, oz, enx, eny, enz, emode, 0, w, state, scene, occluded_fn, scratch,
+                               offset_rel, tgt_kind, tgt_row, tgt_abs_row, tgt_ref, tgt_first, tgt_count, tgt_area,
+                               sens_center, sens_normal, sens_radius, sens_corners, nee_tri, nee_cdf, tri_verts,
+                               tri_normal, tri_mat, mat_prob, contrib, out_k, out_w, counters)
+            for a in range(n_out):
+                nh = _record(out_k[a], out_w[a], hit_k, hit_w, nh, tally, tally_sq, fate0, counters)
+            after_diffuse = True
         while True:
+            skip_sensors = after_diffuse and nee_sensors
+            skip_receivers = after_diffuse and nee_receivers
             store_f32(rh + ORG, ox)
             store_f32(rh + ORG + 4, oy)
             store_f32(rh + ORG + 8, oz)
@@ -278,8 +303,8 @@ def trace_chunk(scene, intersect_fn, scratch, seed, first, count,
                       + (sens_center[s, 2] - oz) * snz) / den
                 if ts <= 0.0 or ts >= t:
                     continue
-                if _inside(s, ox + ts * dx, oy + ts * dy, oz + ts * dz,
-                           sens_kind, sens_center, sens_radius, sens_corners, sens_normal):
+                if not skip_sensors and _inside(s, ox + ts * dx, oy + ts * dy, oz + ts * dz,
+                                                sens_kind, sens_center, sens_radius, sens_corners, sens_normal):
                     nh = _record(s, w, hit_k, hit_w, nh, tally, tally_sq, fate0, counters)
 
             if gid == INVALID_ID:
@@ -298,7 +323,8 @@ def trace_chunk(scene, intersect_fn, scratch, seed, first, count,
                 nh = _record(f_lost, w, hit_k, hit_w, nh, tally, tally_sq, fate0, counters)
                 break
             rec = tri_receiver[tri]
-            if rec >= 0:
+            rec_analog = rec >= 0 and not skip_receivers   # else the next-event tallies cover this hit
+            if rec_analog:
                 nh = _record(n_sens + rec, w, hit_k, hit_w, nh, tally, tally_sq, fate0, counters)
             if depth >= max_depth:
                 nh = _record(f_cut, w, hit_k, hit_w, nh, tally, tally_sq, fate0, counters)
@@ -307,8 +333,15 @@ def trace_chunk(scene, intersect_fn, scratch, seed, first, count,
                 for b in range(n_bands):
                     dep[b] = w[b] * mat_prob[m, ABSORB, b]
                 nh = _record(fate0 + m, dep, hit_k, hit_w, nh, tally, tally_sq, fate0, counters)
-                if rec >= 0:
+                if rec_analog:
                     nh = _record(absorbed0 + rec, dep, hit_k, hit_w, nh, tally, tally_sq, fate0, counters)
+            if n_tgt > 0:   # expected light of the next segment if it leaves diffusely
+                n_out = next_event(px, py, pz, nx, ny, nz, V_SURFACE, m, w, state, scene, occluded_fn, scratch,
+                                   offset_rel, tgt_kind, tgt_row, tgt_abs_row, tgt_ref, tgt_first, tgt_count,
+                                   tgt_area, sens_center, sens_normal, sens_radius, sens_corners, nee_tri, nee_cdf,
+                                   tri_verts, tri_normal, tri_mat, mat_prob, contrib, out_k, out_w, counters)
+                for a in range(n_out):
+                    nh = _record(out_k[a], out_w[a], hit_k, hit_w, nh, tally, tally_sq, fate0, counters)
 
             # one event, drawn with probabilities q shared by the bands; weights carry the rest
             u = uniform(state)
@@ -321,11 +354,12 @@ def trace_chunk(scene, intersect_fn, scratch, seed, first, count,
             for b in range(n_bands):
                 w[b] *= mat_prob[m, ev, b] / q
             if ev == ABSORB:
-                if rec >= 0:
+                if rec_analog:
                     nh = _record(absorbed0 + rec, w, hit_k, hit_w, nh, tally, tally_sq, fate0, counters)
                 nh = _record(fate0 + m, w, hit_k, hit_w, nh, tally, tally_sq, fate0, counters)
                 break
             depth += 1
+            after_diffuse = n_tgt > 0 and (ev == DIFFUSE_R or ev == DIFFUSE_T)
             u1, u2 = uniform(state), uniform(state)
             if ev == DIFFUSE_R:
                 dx, dy, dz = cosine_hemisphere(nx, ny, nz, u1, u2)

@@ -54,9 +54,10 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--seed", type=int, default=1, help="random seed (default 1); results depend on it alone")
     r.add_argument("--threads", type=int, default=None, help="threads (default: all cores)")
     r.add_argument("--out", required=True, help="output folder")
-    r.add_argument("--estimator", choices=("weighted", "analog"), default="weighted",
+    r.add_argument("--estimator", choices=("weighted", "nee", "analog"), default="weighted",
                    help="weighted (default: expected absorption, bands share events without any weight "
-                        "growing) or analog (SEC2's counting: one photon, one event)")
+                        "growing), nee (weighted + next-event tallies on sensors and receivers: far fewer "
+                        "photons for the same precision) or analog (SEC2's counting: one photon, one event)")
     r.add_argument("--quiet", action="store_true", help="no progress lines")
     sub.add_parser("scenes", help="list the built-in scenes")
     return p

@@ -33,7 +33,7 @@ def atomic_write(path: Path, text: str):
 def energy_closure(chamber, result) -> dict:
     """Per band: emitted = absorbed (per material) + escaped + cut + lost, with the residual's σ."""
     N = result.photons
-    names = [m.name for m in chamber.materials]
+    names = result.materials or [m.name for m in chamber.materials]
     out = {}
     fate = result.fate
     accounted, accounted_std = result.closure

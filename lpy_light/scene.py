@@ -10,6 +10,7 @@ Scene files (TOML) name the inputs; paths are relative to the scene file::
     bands = [[655, 665]]                           # nm, [start, end); optional
     solid_sensors = "receivers.rad"                # opaque sensors with a material; optional
     remove = ["fauxPlafondInf"]                    # identifiers to leave out; optional
+    plant_position = [1020, 920, 900]              # where a plant's origin goes (scene units); optional
 
     [physics]                                      # optional, SEC2's semantics by default
     one_sided = true          # a surface is seen only from its front (SEC2)
@@ -41,7 +42,7 @@ log = logging.getLogger("lpy_light")
 
 UNITS = {"mm": 1e-3, "cm": 1e-2, "dm": 1e-1, "m": 1.0, "km": 1e3}
 _SCENE_KEYS = {"geometry", "sensors", "unit", "optical", "specularities", "bands", "solid_sensors", "remove",
-               "physics", "spectrum", "calibration", "name"}
+               "physics", "spectrum", "calibration", "name", "plant_position"}
 _PHYSICS_KEYS = {"one_sided": bool, "lamps": str, "specular": str, "max_depth": int, "offset": float}
 
 
@@ -79,7 +80,9 @@ class Chamber:
     unit: str = "mm"
     physics: Physics = field(default_factory=Physics)
     skipped: list = field(default_factory=list)
-    spectrum: object = None
+    spectrum: object = None     # lamp spectrum (units.read_lamp_spectrum) or None
+    optical: object = None      # optical.OpticalLibrary, for organ materials, or None
+    plant_position: list | None = None   # where a plant's origin goes, scene units
     source: str = ""
 
     @property
@@ -209,6 +212,12 @@ def chamber_from_spec(spec: dict, base: Path, name: str = "<scene>", text: str =
     chamber = build_chamber(prims, sensors, bands=bands, optical=optical, specularities=specularities,
                             physics=physics, unit=unit, solid=solid, remove=remove)
     chamber.spectrum = spectrum
+    chamber.optical = optical
+    pos = spec.get("plant_position")
+    if pos is not None:
+        if not (isinstance(pos, list) and len(pos) == 3 and all(isinstance(x, (int, float)) for x in pos)):
+            raise err("'plant_position' must be [x, y, z] in scene units", "plant_position")
+        chamber.plant_position = [float(x) for x in pos]
     chamber.source = name
     return chamber
 

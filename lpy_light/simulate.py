@@ -17,11 +17,13 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .kernel import embree
+from .kernel.nee import build_targets
 from .kernel.trace import N_COUNTERS, trace_chunk
 from .materials import sampling_tables
 from .geometry import triangle_normals
 
 CHUNK = 1 << 15
+ESTIMATORS = ("weighted", "analog", "nee")
 
 
 @dataclass
@@ -45,6 +47,7 @@ class Result:
     n_sensors: int
     n_receivers: int
     estimator: str = "weighted"
+    materials: list = field(default_factory=list)   # names of the fate rows' materials
     partial: bool = False
     extra: dict = field(default_factory=dict)
 
@@ -97,11 +100,21 @@ class Result:
 
 
 class KernelScene:
-    """A chamber turned into kernel arrays and an Embree scene (built once, reused by runs)."""
+    """A chamber turned into kernel arrays and an Embree scene (built once, reused by runs).
+
+    Organs (:meth:`set_organs`) are a separate Embree geometry, replaced
+    between growth steps while the chamber's geometry and arrays stay built.
+    Receiver rows: the chamber's solid sensors first, then the organs in the
+    order given.
+    """
 
     def __init__(self, chamber, estimator: str = "weighted"):
+        if estimator not in ESTIMATORS:
+            raise ValueError("estimator must be one of %s, not %r" % (", ".join(ESTIMATORS), estimator))
         self.chamber = chamber
         self.estimator = estimator
+        # next-event tallies (estimator "nee"): which targets get expected values instead of counts
+        self.nee_sensors = self.nee_receivers = estimator == "nee"
         tris = chamber.triangles
         area = 0.5 * np.linalg.norm(np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0]), axis=1)
         keep = np.isfinite(tris).all(axis=(1, 2)) & (area > 0)
@@ -110,15 +123,17 @@ class KernelScene:
         order = np.concatenate([np.flatnonzero(one), np.flatnonzero(two)])
         self.dropped = int((~keep).sum())
         self.order = order
-        self.geom_offset = np.array([0, one.sum(), 0], dtype=np.int64)
-        self.tri_normal = np.ascontiguousarray(triangle_normals(tris[order]))
-        self.tri_mat = np.ascontiguousarray(chamber.tri_material[order].astype(np.int32))
-        self.tri_receiver = np.ascontiguousarray(chamber.tri_receiver[order].astype(np.int32))
+        self.n_chamber_triangles = len(order)
+        self.geom_offset = np.array([0, one.sum(), 0, len(order)], dtype=np.int64)
+        self._chamber_normal = triangle_normals(tris[order])
+        self._chamber_verts = tris[order].astype(np.float64)
+        self._chamber_two_sided = chamber.tri_two_sided[order]
+        self._chamber_mat = chamber.tri_material[order].astype(np.int32)
+        self._chamber_receiver = chamber.tri_receiver[order].astype(np.int32)
         sensors = chamber.sensors
         self.scene = embree.EmbreeScene(one_sided=tris[one], two_sided=tris[two],
                                         sensors=sensors.bounding_triangles() if len(sensors) else None)
-        self.mat_prob, self.mat_cum, self.mat_phong = sampling_tables(chamber.materials, chamber.physics.specular,
-                                                                        estimator)
+        self.materials = list(chamber.materials)
         self.sens = (np.ascontiguousarray(sensors.kind, dtype=np.int32), np.ascontiguousarray(sensors.center, float),
                      np.ascontiguousarray(sensors.normal, float), np.ascontiguousarray(sensors.radius, float),
                      np.ascontiguousarray(sensors.corners, float))
@@ -126,10 +141,62 @@ class KernelScene:
         self.emit = (np.ascontiguousarray(em.kind, dtype=np.int32), np.ascontiguousarray(em.data, float),
                      np.ascontiguousarray(em.cdf, float))
         self.n_sensors = len(sensors)
-        self.n_receivers = len(chamber.receivers)
+        self.n_chamber_receivers = len(chamber.receivers)
         self.n_bands = chamber.n_bands
-        self.n_rows = self.n_sensors + 2 * self.n_receivers + len(chamber.materials) + 4
         self.intersect = embree.intersect1_address()
+        self.occluded = embree.occluded1_address()
+        self.organs = []
+        self._assemble(np.zeros((0, 3, 3)), np.zeros((0, 2), np.int32), np.zeros(0, np.int32))
+
+    def _assemble(self, verts, mat, receiver):
+        self.tri_verts = np.ascontiguousarray(np.concatenate([self._chamber_verts, verts]))
+        normal = triangle_normals(verts) if len(verts) else np.zeros((0, 3))
+        self.two_sided = np.concatenate([self._chamber_two_sided, np.ones(len(verts), bool)])
+        self.tri_normal = np.ascontiguousarray(np.concatenate([self._chamber_normal, normal]))
+        self.tri_mat = np.ascontiguousarray(np.concatenate([self._chamber_mat, mat]).astype(np.int32))
+        self.tri_receiver = np.ascontiguousarray(np.concatenate([self._chamber_receiver, receiver]).astype(np.int32))
+        self.mat_prob, self.mat_cum, self.mat_phong = sampling_tables(
+            self.materials, self.chamber.physics.specular, "analog" if self.estimator == "analog" else "weighted")
+        self.n_receivers = self.n_chamber_receivers + len(self.organs)
+        self.n_rows = self.n_sensors + 2 * self.n_receivers + len(self.materials) + 4
+        self.retarget()
+
+    def retarget(self):
+        """Rebuild the next-event target arrays after a change of organs or of ``nee_*`` flags."""
+        self.targets = build_targets(self.n_sensors, self.sens[0], self.chamber.sensors.area, self.n_receivers, self.tri_receiver,
+                                     self.tri_verts, self.two_sided, self.n_sensors,
+                                     self.n_sensors + self.n_receivers,
+                                     sensors=self.nee_sensors, receivers=self.nee_receivers)
+
+    def material_index(self, material) -> int:
+        """Index of ``material`` (a :class:`~lpy_light.materials.Material`), added if new (by name)."""
+        for i, m in enumerate(self.materials):
+            if m.name == material.name and m.type == material.type:
+                return i
+        self.materials.append(material)
+        return len(self.materials) - 1
+
+    def set_organs(self, organs, materials: dict):
+        """Put ``organs`` (list of :class:`~lpy_light.organs.Organ`) in the chamber, replacing the previous ones.
+
+        ``materials`` maps each front/back name to its Material.  Organ i is
+        receiver ``n_chamber_receivers + i``.
+        """
+        self.organs = list(organs)
+        R0 = self.n_chamber_receivers
+        tris = [o.triangles for o in self.organs]
+        mats, recv = [], []
+        for i, o in enumerate(self.organs):
+            front, back = self.material_index(materials[o.front]), self.material_index(materials[o.back])
+            mats.append(np.tile(np.int32([front, back]), (len(o.triangles), 1)))
+            recv.append(np.full(len(o.triangles), R0 + i, np.int32))
+        if tris:
+            tris = np.concatenate(tris).astype(np.float64)
+            self._assemble(tris, np.concatenate(mats), np.concatenate(recv))
+        else:
+            tris = None
+            self._assemble(np.zeros((0, 3, 3)), np.zeros((0, 2), np.int32), np.zeros(0, np.int32))
+        self.scene.set_organs(tris)
 
     def trace(self, seed: int, first: int, count: int):
         """Trace one chunk; returns (tally, tally_sq, counters)."""
@@ -140,7 +207,8 @@ class KernelScene:
         trace_chunk(self.scene.handle, self.intersect, scratch.ctypes.data, seed, first, count,
                     self.geom_offset, self.tri_normal, self.tri_mat, self.tri_receiver,
                     self.mat_prob, self.mat_cum, self.mat_phong, *self.sens, *self.emit,
-                    phys.max_depth, phys.offset, self.n_receivers, self.estimator == "weighted", *out)
+                    phys.max_depth, phys.offset, self.n_receivers, self.estimator != "analog",
+                    self.occluded, self.nee_sensors, self.nee_receivers, *self.targets, self.tri_verts, *out)
         return out
 
 
@@ -192,7 +260,7 @@ def run(kscene: KernelScene, photons: int, seed: int = 1, threads: int | None = 
                 fut.cancel()
     seconds = time.perf_counter() - start
     return Result(done, acc[0], acc[1], acc[2], seconds, threads, seed, kscene.n_sensors, kscene.n_receivers,
-                  estimator=kscene.estimator, partial=partial)
+                  estimator=kscene.estimator, materials=[m.name for m in kscene.materials], partial=partial)
 
 
 def progress_printer(stream=sys.stderr, every: float = 2.0):

@@ -1,0 +1,236 @@
+"""Next-event tallies: the expected light a small target gets from one photon vertex.
+
+A 10 mm sensor or a bud catches ~1e-5 of the emitted photons, so counting
+crossings needs ~1e9 photons for 1%.  Instead, at every vertex where the photon
+leaves diffusely (its emission from a lamp, a diffuse reflection or
+transmission), we add, for every target, the *expected* weight the next flight
+segment deposits on it:
+
+    E[crossing] = ∫_target p(ω(x)) · |cos θ_x| / |x − v|² · V(v, x) dA(x)
+
+estimated with one point x sampled uniformly on the target (area A):
+``A · p(ω) · |cos θ_x| / d² · V``, V from one shadow ray.  p is the pdf of the
+direction the photon leaves v in: 1/(4π) for isotropic line lamps, cos/π for
+Lambertian emitters, and for a surface ``P_dR,b · cos⁺/π + P_dT,b · cos⁻/π``
+(the diffuse events' physical probabilities per band, whatever event the
+photon then draws).  Segments after a specular event (mirror, Phong lobe,
+straight transmission) are not covered and are counted by their real
+crossings, so every segment is counted exactly once in expectation: the
+estimator is unbiased.  For organs the expected absorbed weight,
+``E[crossing] · P_abs`` of the side hit, is tallied the same way.
+
+Targets are discs and quads (transparent sensors: crossings from the front
+only) and meshes (receivers: organs, two-sided, or solid sensors, one-sided),
+sampled by triangle area.
+"""
+import math
+
+import numpy as np
+from numba import njit
+
+from .embree import ARGS, CAND_COUNT, DIR, MASK, ORG, RAYHIT, TFAR, TNEAR
+from .ptr import call_ptr3, load_f32, store_f32, store_i64, store_u32
+from .rng import uniform
+from .sampling import frame
+
+T_DISC, T_QUAD, T_MESH2, T_MESH1 = 0, 1, 2, 3       # target kinds (MESH2: two-sided, MESH1: one-sided)
+DIFFUSE_R, DIFFUSE_T, ABSORB = 0, 2, 4
+INV_4PI = 1.0 / (4.0 * math.pi)
+
+# vertex modes
+V_ISOTROPIC, V_LAMBERT, V_SURFACE = 0, 1, 2
+
+
+@njit(inline="always", cache=True)
+def visible(occluded_fn, scene, scratch, ox, oy, oz, dx, dy, dz, tfar):
+    """Is the segment from o along unit d, up to tfar, free of surfaces?  One ``rtcOccluded1`` call."""
+    rh = scratch + RAYHIT
+    store_f32(rh + ORG, ox)
+    store_f32(rh + ORG + 4, oy)
+    store_f32(rh + ORG + 8, oz)
+    store_f32(rh + TNEAR, 0.0)
+    store_f32(rh + DIR, dx)
+    store_f32(rh + DIR + 4, dy)
+    store_f32(rh + DIR + 8, dz)
+    store_f32(rh + DIR + 12, 0.0)
+    store_f32(rh + TFAR, tfar)
+    store_u32(rh + MASK, 0xFFFFFFFF)
+    store_u32(rh + MASK + 4, 0)
+    store_u32(rh + MASK + 8, 0)
+    store_i64(scratch + CAND_COUNT, 0)
+    call_ptr3(occluded_fn, scene, rh, scratch + ARGS)
+    return load_f32(rh + TFAR) >= 0.0
+
+
+@njit(inline="always", cache=True)
+def _tri_point(a, u1, u2):
+    su = math.sqrt(u1)
+    b0, b1 = 1.0 - su, u2 * su
+    b2 = 1.0 - b0 - b1
+    return (b0 * a[0, 0] + b1 * a[1, 0] + b2 * a[2, 0],
+            b0 * a[0, 1] + b1 * a[1, 1] + b2 * a[2, 1],
+            b0 * a[0, 2] + b1 * a[1, 2] + b2 * a[2, 2])
+
+
+@njit(inline="always", cache=True)
+def _tri_area(c, i, j, k):
+    ax, ay, az = c[j, 0] - c[i, 0], c[j, 1] - c[i, 1], c[j, 2] - c[i, 2]
+    bx, by, bz = c[k, 0] - c[i, 0], c[k, 1] - c[i, 1], c[k, 2] - c[i, 2]
+    cx, cy, cz = ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx
+    return 0.5 * math.sqrt(cx * cx + cy * cy + cz * cz)
+
+
+@njit(cache=True)
+def next_event(vx, vy, vz, nx, ny, nz, mode, m, w, state, scene, occluded_fn, scratch, offset_rel,
+               tgt_kind, tgt_row, tgt_abs_row, tgt_ref, tgt_first, tgt_count, tgt_area,
+               sens_center, sens_normal, sens_radius, sens_corners,
+               nee_tri, nee_cdf, tri_verts, tri_normal, tri_mat, mat_prob, contrib, out_k, out_w, counters):
+    """Expected deposits of the segment leaving vertex v on every target; returns how many were written.
+
+    v (scene units) with unit normal n (for Lambertian emission: the emitter's
+    normal; for a surface: the side the photon arrived from).  ``mode``:
+    V_ISOTROPIC, V_LAMBERT or V_SURFACE (material m).  ``w`` (B,) the photon's
+    weights.  Deposits go to ``out_k[i]`` (tally row) and ``out_w[i, :]`` for
+    i < the returned count (at most 2 per target).
+    """
+    n_bands = w.shape[0]
+    vmag = max(abs(vx), abs(vy), abs(vz))
+    n_out = 0
+    for t in range(tgt_kind.shape[0]):
+        kind = tgt_kind[t]
+        u1, u2, u3 = uniform(state), uniform(state), uniform(state)
+        g = -1
+        if kind == T_DISC:
+            s = tgt_ref[t]
+            mx, my, mz = sens_normal[s, 0], sens_normal[s, 1], sens_normal[s, 2]
+            if (vx - sens_center[s, 0]) * mx + (vy - sens_center[s, 1]) * my + (vz - sens_center[s, 2]) * mz <= 0.0:
+                continue     # behind the sensor's plane: cannot cross it from the front
+            tb, bb = frame(mx, my, mz)
+            r = sens_radius[s] * math.sqrt(u1)
+            c, sn = r * math.cos(2.0 * math.pi * u2), r * math.sin(2.0 * math.pi * u2)
+            px = sens_center[s, 0] + c * tb[0] + sn * bb[0]
+            py = sens_center[s, 1] + c * tb[1] + sn * bb[1]
+            pz = sens_center[s, 2] + c * tb[2] + sn * bb[2]
+        elif kind == T_QUAD:
+            s = tgt_ref[t]
+            mx, my, mz = sens_normal[s, 0], sens_normal[s, 1], sens_normal[s, 2]
+            if (vx - sens_center[s, 0]) * mx + (vy - sens_center[s, 1]) * my + (vz - sens_center[s, 2]) * mz <= 0.0:
+                continue
+            cq = sens_corners[s]
+            a0 = _tri_area(cq, 0, 1, 2)
+            a1 = _tri_area(cq, 0, 2, 3)
+            su = math.sqrt(u1)
+            b0, b1 = 1.0 - su, u2 * su
+            b2 = 1.0 - b0 - b1
+            k1, k2 = (1, 2) if u3 * (a0 + a1) < a0 else (2, 3)
+            px = b0 * cq[0, 0] + b1 * cq[k1, 0] + b2 * cq[k2, 0]
+            py = b0 * cq[0, 1] + b1 * cq[k1, 1] + b2 * cq[k2, 1]
+            pz = b0 * cq[0, 2] + b1 * cq[k1, 2] + b2 * cq[k2, 2]
+        else:
+            lo, hi = tgt_first[t], tgt_first[t] + tgt_count[t] - 1
+            while lo < hi:
+                mid = (lo + hi) // 2
+                if nee_cdf[mid] > u3:
+                    hi = mid
+                else:
+                    lo = mid + 1
+            g = nee_tri[lo]
+            px, py, pz = _tri_point(tri_verts[g], u1, u2)
+            mx, my, mz = tri_normal[g, 0], tri_normal[g, 1], tri_normal[g, 2]
+        dx, dy, dz = px - vx, py - vy, pz - vz
+        dist2 = dx * dx + dy * dy + dz * dz
+        if not dist2 > 0.0:
+            continue
+        dist = math.sqrt(dist2)
+        dx, dy, dz = dx / dist, dy / dist, dz / dist
+        cos_x = dx * mx + dy * my + dz * mz
+        if kind != T_MESH2 and cos_x >= 0.0:
+            continue          # sensors and one-sided receivers are met from the front only
+        geom = tgt_area[t] * abs(cos_x) / dist2
+        cos_v = dx * nx + dy * ny + dz * nz
+        if mode == V_ISOTROPIC:
+            for b in range(n_bands):
+                contrib[b] = w[b] * INV_4PI * geom
+            side = 0.0
+        elif mode == V_LAMBERT:
+            if cos_v <= 0.0:
+                continue
+            for b in range(n_bands):
+                contrib[b] = w[b] * cos_v / math.pi * geom
+            side = 1.0
+        else:
+            ev = DIFFUSE_R if cos_v > 0.0 else DIFFUSE_T
+            any_light = False
+            for b in range(n_bands):
+                contrib[b] = w[b] * mat_prob[m, ev, b] * abs(cos_v) / math.pi * geom
+                any_light = any_light or contrib[b] > 0.0
+            if not any_light:
+                continue
+            side = 1.0 if cos_v > 0.0 else -1.0
+        eps = offset_rel * (vmag + max(abs(px), abs(py), abs(pz)))
+        tfar = dist - 2.0 * eps
+        if tfar <= 0.0:
+            continue
+        counters[4] += 1
+        if not visible(occluded_fn, scene, scratch, vx + side * eps * nx, vy + side * eps * ny,
+                       vz + side * eps * nz, dx, dy, dz, tfar):
+            continue
+        out_k[n_out] = tgt_row[t]
+        for b in range(n_bands):
+            out_w[n_out, b] = contrib[b]
+        n_out += 1
+        if tgt_abs_row[t] >= 0:
+            mm = tri_mat[g, 0] if cos_x < 0.0 else tri_mat[g, 1]
+            out_k[n_out] = tgt_abs_row[t]
+            for b in range(n_bands):
+                out_w[n_out, b] = contrib[b] * mat_prob[mm, ABSORB, b]
+            n_out += 1
+    return n_out
+
+
+def build_targets(n_sensors, sens_kind, sens_area, n_receivers_rows, tri_receiver, tri_verts, tri_two_sided,
+                  receiver_row0, absorbed_row0, sensors=True, receivers=True):
+    """Target arrays for :func:`next_event` (see there); numpy, outside the hot loop.
+
+    ``tri_receiver`` (T,) receiver index per kernel triangle or -1;
+    ``tri_two_sided`` (T,) bool.  Receiver r's incident row is
+    ``receiver_row0 + r`` and absorbed row ``absorbed_row0 + r``.
+    """
+    kind, row, abs_row, ref, first, count, area = [], [], [], [], [], [], []
+    nee_tri, nee_cdf = [], []
+    if sensors:
+        for s in range(n_sensors):
+            kind.append(T_DISC if sens_kind[s] == 0 else T_QUAD)
+            row.append(s)
+            abs_row.append(-1)
+            ref.append(s)
+            first.append(0)
+            count.append(0)
+            area.append(float(sens_area[s]))
+    if receivers and n_receivers_rows:
+        tri_area = 0.5 * np.linalg.norm(np.cross(tri_verts[:, 1] - tri_verts[:, 0], tri_verts[:, 2] - tri_verts[:, 0]),
+                                        axis=1)
+        order = np.argsort(tri_receiver, kind="stable")
+        recv_sorted = tri_receiver[order]
+        for r in range(n_receivers_rows):
+            lo, hi = np.searchsorted(recv_sorted, r), np.searchsorted(recv_sorted, r, side="right")
+            tris = order[lo:hi]
+            a = tri_area[tris]
+            total = a.sum()
+            if len(tris) == 0 or not total > 0:
+                continue
+            kind.append(T_MESH2 if tri_two_sided[tris].all() else T_MESH1)
+            row.append(receiver_row0 + r)
+            abs_row.append(absorbed_row0 + r)
+            ref.append(r)
+            first.append(len(nee_tri))
+            count.append(len(tris))
+            area.append(float(total))
+            cdf = np.cumsum(a) / total
+            cdf[-1] = 1.0 + 1e-12
+            nee_tri.extend(tris.tolist())
+            nee_cdf.extend(cdf.tolist())
+    i64 = lambda x: np.ascontiguousarray(x, dtype=np.int64)
+    return (np.ascontiguousarray(kind, dtype=np.int32), i64(row), i64(abs_row), i64(ref), i64(first), i64(count),
+            np.ascontiguousarray(area, dtype=np.float64), i64(nee_tri if nee_tri else np.zeros(0)),
+            np.ascontiguousarray(nee_cdf if nee_cdf else np.zeros(0), dtype=np.float64))

@@ -1,0 +1,274 @@
+"""The light model a growth simulation calls at every step: :class:`LightModel`.
+
+It holds the chamber (read and built into Embree once), the lamps' photon flux
+per band (from one normalisation run of the empty chamber against the
+measured lamp spectrum), and the organ materials.  Each step it receives the
+plant as organs, places them in the chamber, runs the kernel and returns each
+organ's light:
+
+* ``ppfd`` (B,) — incident photon flux density, µmol m⁻² s⁻¹: photons hitting
+  the organ (either side) per second, divided by its one-sided area;
+* ``absorbed`` (B,) — µmol s⁻¹ absorbed by the organ;
+* ``par`` (µmol m⁻² s⁻¹, when the bands tile 400-700 nm) and ``rfr`` = ppfd
+  655-665 / ppfd 725-735 (when both bands are present);
+* and the standard error of each (``ppfd_std``, ...).
+
+With L-Py, one line in the model's ``EndEach`` does it all
+(:meth:`LightModel.intercept`); without L-Py, pass organs as a mapping
+``key -> mesh`` or ``key -> (mesh, material)`` (trimesh meshes or
+``(vertices, faces)``), in the plant's unit.
+
+Units: the plant's coordinates are in ``plant_unit`` (L-Py models usually
+work in cm); the chamber's in its scene unit (Angers: mm).  The plant's origin
+is put at ``position`` (chamber units; by default the scene's
+``plant_position``, else the centre of the floor).
+"""
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Mapping
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from . import simulate, units
+from .errors import InputError
+from .organs import TessellationCache, mesh_key, organ_from_mesh, plant_material
+from .scene import UNITS, load_scene
+
+log = logging.getLogger("lpy_light")
+
+LEAF = ("FeuilleVieille_Sup", "FeuilleVieille_Inf")   # upper side, lower side (Angers optical tables)
+
+
+@dataclass
+class OrganLight:
+    """The light of one organ at one step (arrays are per band, ``bands`` labels).
+
+    Readable as attributes (``light.par``) or items (``light['par']``) from L-Py rules.
+    """
+
+    key: object
+    module: str
+    bands: list
+    area_m2: float
+    photons: np.ndarray          # (B,) expected photon hits for the run's N photons
+    photons_std: np.ndarray
+    ppfd: np.ndarray             # (B,) µmol m⁻² s⁻¹ incident
+    ppfd_std: np.ndarray
+    absorbed: np.ndarray         # (B,) µmol s⁻¹
+    absorbed_std: np.ndarray
+    par: float = float("nan")
+    par_std: float = float("nan")
+    rfr: float = float("nan")
+    rfr_std: float = float("nan")
+
+    def __getitem__(self, name):
+        return getattr(self, name)
+
+    def band(self, label: str) -> float:
+        """ppfd of the band labelled ``label`` (e.g. '655-665')."""
+        return float(self.ppfd[self.bands.index(label)])
+
+
+@dataclass
+class StepResult:
+    """All organs of one step, with the run's figures."""
+
+    step: int
+    organs: dict                 # key -> OrganLight
+    photons: int
+    seconds: float
+    triangles: int
+    tessellated: int             # organs converted this step (cache misses)
+    reused: int                  # organs taken from the cache
+    extra: dict = field(default_factory=dict)
+
+
+class LightModel:
+    """A growth chamber ready to light a plant at every step.
+
+    Parameters
+    ----------
+    scene : str or path
+        Scene TOML or a built-in name (default ``angers-12bands``: 12 SEC2 bands,
+        PAR and R:FR available).
+    organs : mapping module name -> material
+        Which modules are organs and their optical material: a name from the
+        scene's optical tables, a ``(front, back)`` pair (a leaf's upper and lower
+        side), or ``{"reflectance": R, "transmittance": T}``.  Default: ``Leaf``
+        with the Angers leaf tables (:data:`LEAF`).
+    photons : int
+        Photons per step (per band: all bands travel together).
+    plant_unit : str
+        Unit of the plant's coordinates ('mm', 'cm', 'm', ...).
+    position : (3,) or None
+        Where the plant's origin goes, in chamber units.
+    parameter : str
+        Name of the module parameter that receives each organ's :class:`OrganLight`.
+    lamp_flux : (B,) or None
+        µmol s⁻¹ emitted per band; default: from the scene's lamp spectrum.
+    """
+
+    def __init__(self, scene="angers-12bands", organs=None, photons: int = 300_000, seed: int = 1,
+                 threads: int | None = None, plant_unit: str = "cm", position=None, parameter: str = "light",
+                 estimator: str = "weighted", lamp_flux=None, normalisation_photons: int = 2_000_000,
+                 progress=None):
+        from .cli import resolve_scene
+
+        self.chamber = scene if hasattr(scene, "triangles") else load_scene(resolve_scene(str(scene)))
+        if plant_unit not in UNITS:
+            raise InputError("unknown plant_unit %r (use one of %s)" % (plant_unit, ", ".join(UNITS)))
+        self.scale = UNITS[plant_unit] / self.chamber.metres_per_unit
+        self.position = np.asarray(self._default_position() if position is None else position, dtype=float)
+        self.organ_materials = dict(organs) if organs is not None else {"Leaf": LEAF}
+        self.photons, self.seed, self.threads = int(photons), int(seed), threads
+        self.parameter = parameter
+        self.progress = progress
+        self.kscene = simulate.KernelScene(self.chamber, estimator=estimator)
+        self.materials: dict = {}
+        for spec in self.organ_materials.values():
+            self._materials_of(spec)
+        self.cache = TessellationCache()
+        self.step = 0
+        self.on_step = None          # callback(step: StepResult, organs: list) after each L-Py step
+        self.last_step = None
+        self.last_organs = []
+        self.flux, self.flux_std = self._lamp_flux(lamp_flux, normalisation_photons)
+
+    # -- set-up -------------------------------------------------------------------------
+    def _default_position(self):
+        pos = getattr(self.chamber, "plant_position", None)
+        if pos is not None:
+            return pos
+        lo, hi = self.chamber.triangles.min(axis=(0, 1)), self.chamber.triangles.max(axis=(0, 1))
+        return [(lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, lo[2]]
+
+    def _materials_of(self, spec) -> tuple:
+        """(front, back) material names for an organ material spec; builds them once."""
+        if isinstance(spec, (tuple, list)):
+            if len(spec) != 2:
+                raise InputError("organ material %r: expected a name or a (front, back) pair" % (spec,))
+            return self._materials_of(spec[0])[0], self._materials_of(spec[1])[0]
+        name = spec if isinstance(spec, str) else "const(%s)" % ",".join(
+            "%s=%g" % kv for kv in sorted(dict(spec).items()))
+        if name not in self.materials:
+            self.materials[name] = plant_material(spec, name, self.chamber)
+        return name, name
+
+    def _lamp_flux(self, lamp_flux, n):
+        B = self.chamber.n_bands
+        if lamp_flux is not None:
+            flux = np.broadcast_to(np.asarray(lamp_flux, dtype=float), (B,)).copy()
+            return flux, np.zeros(B)
+        ch = self.chamber
+        if ch.spectrum is None or ch.bands is None or len(ch.sensors) == 0:
+            raise InputError("the light model needs the lamps' photon flux: give lamp_flux=[µmol/s per band] or "
+                             "a scene with 'spectrum', 'bands' and reference sensors", ch.source or None)
+        result = simulate.run(self.kscene, n, seed=self.seed + 7919, threads=self.threads)
+        photons, std = result.sensors()
+        norm = units.from_spectrum(photons, std, ch.sensors.area * ch.metres_per_unit ** 2, ch.spectrum, ch.bands)
+        self.normalisation = norm
+        return norm.scale * result.photons, norm.scale_std * result.photons
+
+    # -- one step -----------------------------------------------------------------------
+    def organs_from_meshes(self, meshes: Mapping, module: str = "") -> list:
+        """Organs from ``key -> mesh``, ``key -> (mesh, material)`` or ``key -> (mesh, material, module)``,
+        in the plant's unit; the material defaults to the first entry of ``organs``."""
+        out = []
+        default = next(iter(self.organ_materials.values()))
+        for key, item in meshes.items():
+            mat, mod = default, module
+            if isinstance(item, tuple) and len(item) in (2, 3) and not isinstance(item[0], np.ndarray):
+                mesh, mat = item[0], item[1]
+                mod = item[2] if len(item) == 3 else module
+            else:
+                mesh = item
+            front, back = self._materials_of(mat)
+            try:
+                v, f = (mesh.vertices, mesh.faces) if hasattr(mesh, "faces") else mesh
+                cache_key = (mesh_key(v, f), front, back, mod)
+            except (TypeError, ValueError):
+                cache_key = None     # organ_from_mesh explains what is wrong
+            organ = self.cache.get(cache_key, lambda: organ_from_mesh(key, mesh, (front, back), mod, self.scale,
+                                                                      self.position))
+            out.append(replace(organ, key=key))
+        self.cache.end_step()
+        return out
+
+    def run(self, organs: list, photons: int | None = None) -> StepResult:
+        """Light ``organs`` (list of :class:`~lpy_light.organs.Organ`, chamber units) for one step."""
+        n = int(photons or self.photons)
+        t0 = time.perf_counter()
+        self.kscene.set_organs(organs, self.materials)
+        result = simulate.run(self.kscene, n, seed=self.seed + self.step, threads=self.threads,
+                              progress=self.progress)
+        lights = organ_lights(self.kscene, result, organs, self.flux, self.flux_std, self.chamber)
+        step = StepResult(self.step, lights, result.photons, time.perf_counter() - t0,
+                          sum(len(o.triangles) for o in organs), 0, 0)
+        self.step += 1
+        return step
+
+    def intercept(self, organs, lscene=None):
+        """Light the plant of this step.
+
+        * ``intercept(lstring, lscene)`` from an ``.lpy`` file's ``EndEach``:
+          tessellates the organ modules' shapes (cached by geometry), runs the
+          kernel, writes each organ's :class:`OrganLight` into the module
+          parameter ``parameter`` and returns ``(lstring, lscene)`` — return that
+          from ``EndEach``.  ``lscene`` must not be None: call
+          ``frameDisplay(True)`` in ``StartEach`` (see :mod:`lpy_light.lpy`).
+        * ``intercept({key: mesh or (mesh, material)})``: returns ``{key: OrganLight}``.
+        """
+        if isinstance(organs, Mapping):
+            return self.run(self.organs_from_meshes(organs)).organs
+        from . import lpy
+        return lpy.intercept(self, organs, lscene)
+
+
+def organ_lights(kscene, result, organs, flux, flux_std, chamber) -> dict:
+    """Per organ: photons, ppfd, absorbed, PAR, R:FR, each with σ; ``{key: OrganLight}``."""
+    R0, N = kscene.n_chamber_receivers, result.photons
+    inc, inc_std = result.receivers_incident()
+    ab, ab_std = result.receivers_absorbed()
+    m2 = chamber.metres_per_unit ** 2
+    labels = chamber.band_labels
+    par_cols = units.par_columns(chamber.bands)
+    out = {}
+
+    def scaled(x, sx, per):
+        value = x * flux / N / per
+        with np.errstate(divide="ignore", invalid="ignore"):
+            rel2 = np.where(x > 0, (sx / np.where(x > 0, x, 1)) ** 2, 0) + (flux_std / flux) ** 2
+        std = np.where(x > 0, np.abs(value) * np.sqrt(rel2), sx * flux / N / per)
+        return value, std
+
+    for i, organ in enumerate(organs):
+        r = R0 + i
+        area = organ.area * m2
+        ppfd, ppfd_std = scaled(inc[r], inc_std[r], area)
+        absorbed, absorbed_std = scaled(ab[r], ab_std[r], 1.0)
+        light = OrganLight(organ.key, organ.module, labels, area, inc[r].copy(), inc_std[r].copy(),
+                           ppfd, ppfd_std, absorbed, absorbed_std)
+        if par_cols is not None:
+            light.par = float(ppfd[par_cols].sum())
+            light.par_std = float(np.sqrt((ppfd_std[par_cols] ** 2).sum()))
+        rfr, rfr_std = units.red_far_red(ppfd[None, :], ppfd_std[None, :], chamber.bands)
+        if rfr is not None:
+            light.rfr, light.rfr_std = float(rfr[0]), float(rfr_std[0])
+        out[organ.key] = light
+    return out
+
+
+def organ_rows(step: StepResult) -> list:
+    """Rows of ``organs.csv``: one per organ and band."""
+    rows = []
+    for key, light in step.organs.items():
+        for b, label in enumerate(light.bands):
+            rows.append({"step": step.step, "organ": key, "module": light.module, "band": label,
+                         "ppfd": light.ppfd[b], "ppfd_std": light.ppfd_std[b],
+                         "absorbed": light.absorbed[b], "absorbed_std": light.absorbed_std[b],
+                         "photons": light.photons[b], "photons_std": light.photons_std[b],
+                         "area_m2": light.area_m2, "par": light.par, "rfr": light.rfr, "rfr_std": light.rfr_std})
+    return rows

@@ -1,0 +1,200 @@
+"""The thin L-Py / PlantGL layer: lstring + PlantGL scene → organs → module parameters.
+
+L-Py and PlantGL come from conda only (``environment.yml``); they are imported
+lazily, inside the functions that need them.  The logic that does not need
+them — grouping shapes by module, building organs, writing results into
+modules — is in plain functions tested in CI with fake lstrings and trimesh
+meshes.
+
+In an ``.lpy`` file (see ``lsystems/rose.lpy``)::
+
+    from lpy_light import LightModel
+    light = LightModel(organs={"Leaf": ("FeuilleVieille_Sup", "FeuilleVieille_Inf")}, plant_unit="cm")
+    module Leaf(length, light)
+
+    def StartEach():
+        frameDisplay(True)          # L-Py builds the scene only on the last step otherwise
+    def EndEach(lstring, lscene):
+        return light.intercept(lstring, lscene)
+
+Facts about L-Py this follows (read in its sources, see
+``docs/notes/lpy-plantgl-api.md``): ``Shape.id`` is the module's index in the
+lstring and several shapes may share it; ``EndEach`` must be a plain function
+and should return ``(lstring, lscene)``; in a batch ``derive()`` the scene is
+``None`` on every step but the last unless ``frameDisplay(True)`` is called in
+``StartEach``; PlantGL point lists have no numpy view, and converting them point
+by point is slow, so we use ``Point3Array.to_str`` (one C++ loop) when present.
+"""
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+
+from .errors import LpyLightError
+from .organs import organ_from_mesh
+
+log = logging.getLogger("lpy_light")
+
+CONDA_HINT = ("L-Py and PlantGL are installed with conda, not pip: "
+              "conda env create -f environment.yml (channels openalea3, conda-forge)")
+
+
+def require_lpy():
+    """Import and return ``openalea.lpy``, or raise a clear error."""
+    try:
+        import openalea.lpy as lpy
+    except ImportError as exc:
+        raise LpyLightError("L-Py is not importable (%s). %s" % (exc, CONDA_HINT)) from None
+    return lpy
+
+
+def require_plantgl():
+    try:
+        import openalea.plantgl.all as pgl
+    except ImportError as exc:
+        raise LpyLightError("PlantGL is not importable (%s). %s" % (exc, CONDA_HINT)) from None
+    return pgl
+
+
+# -- plain functions (no L-Py needed) --------------------------------------------------------
+def organs_from_meshes_by_id(meshes_by_id: dict, module_names: dict, model) -> list:
+    """Organs from ``{id: [(vertices, faces), ...]}`` (several shapes per module are merged).
+
+    ``module_names`` maps id → module name; ``model`` (a
+    :class:`~lpy_light.light.LightModel`) gives each module's material, the
+    plant unit and the position.
+    """
+    organs = []
+    for key in sorted(meshes_by_id):
+        parts = meshes_by_id[key]
+        name = module_names[key]
+        vertices, faces, base = [], [], 0
+        for v, f in parts:
+            vertices.append(np.asarray(v, dtype=np.float64))
+            faces.append(np.asarray(f, dtype=np.int64) + base)
+            base += len(v)
+        front, back = model._materials_of(model.organ_materials[name])
+        organs.append(organ_from_mesh(key, (np.concatenate(vertices), np.concatenate(faces)), (front, back), name,
+                                      model.scale, model.position))
+    return organs
+
+
+def write_parameters(lstring, lights: dict, parameter: str) -> int:
+    """Write ``lights[i]`` into parameter ``parameter`` of module ``lstring[i]``; return how many.
+
+    Modules without that parameter (declare it: ``module Leaf(length, light)``)
+    are reported once per module name and left unchanged.
+    """
+    written, missing = 0, set()
+    for key, light in lights.items():
+        module = lstring[key]
+        if module.hasParameter(parameter):
+            module.setParameter(parameter, light)
+            written += 1
+        else:
+            missing.add(module.name)
+    for name in sorted(missing):
+        log.warning("module %s has no parameter %r: declare 'module %s(..., %s)' to receive its light",
+                    name, parameter, name, parameter)
+    return written
+
+
+# -- PlantGL ---------------------------------------------------------------------------------
+_KNOWN = {"Translated", "Oriented", "Scaled", "AxisRotated", "EulerRotated", "Tapered", "Cylinder", "Frustum",
+          "Cone", "Sphere", "Disc", "Box", "Paraboloid", "Revolution"}
+_FIELDS = ("translation", "primary", "secondary", "scale", "axis", "angle", "azimuth", "elevation", "roll",
+           "radius", "height", "taper", "slices", "stacks", "solid", "size", "baseRadius", "topRadius", "shape")
+_CHILDREN = ("geometry", "primitive")
+
+
+def _value(v):
+    if isinstance(v, (bool, int, float, str)):
+        return v
+    if all(hasattr(v, a) for a in ("x", "y", "z")):
+        return (float(v.x), float(v.y), float(v.z))
+    return None
+
+
+def geometry_key(geometry):
+    """A content key for a PlantGL geometry built by the turtle, or None (do not cache).
+
+    Walks the transform wrappers (Translated, Oriented, Scaled, ...) down to the
+    primitive and keeps each node's type and parameters: equal keys mean equal
+    world-space geometry.  Types not known here give None.
+    """
+    parts = []
+    node = geometry
+    for _ in range(32):
+        kind = type(node).__name__
+        if kind not in _KNOWN:
+            return None
+        parts.append(kind)
+        for name in _FIELDS:
+            if hasattr(node, name):
+                v = _value(getattr(node, name))
+                if v is None:
+                    return None
+                parts.append((name, v))
+        child = next((getattr(node, c) for c in _CHILDREN if hasattr(node, c)), None)
+        if child is None:
+            return tuple(parts)
+        node = child
+    return None
+
+
+def _points(point_list) -> np.ndarray:
+    if hasattr(point_list, "to_str"):
+        return np.array(point_list.to_str("%.9g %.9g %.9g", " ").split(), dtype=np.float64).reshape(-1, 3)
+    return np.array([(p.x, p.y, p.z) for p in point_list], dtype=np.float64).reshape(-1, 3)
+
+
+def _tessellate(shape, pgl):
+    t = pgl.Tesselator()
+    shape.apply(t)
+    ts = t.result
+    if ts is None or len(ts.indexList) == 0:
+        return None
+    faces = np.array([tuple(f) for f in ts.indexList], dtype=np.int64).reshape(-1, 3)
+    return _points(ts.pointList), faces
+
+
+def shapes_by_module(lstring, lscene, names, cache):
+    """``({id: [(vertices, faces), ...]}, {id: module name})`` for the shapes of modules in ``names``."""
+    pgl = require_plantgl()
+    meshes, modules = {}, {}
+    for i in range(len(lscene)):
+        shape = lscene[i]
+        sid = shape.id
+        if sid == pgl.Shape.NOID or sid < 0 or sid >= len(lstring):
+            continue
+        name = lstring[sid].name
+        if name not in names:
+            continue
+        key = geometry_key(shape.geometry)
+        mesh = cache.get(key, lambda: _tessellate(shape, pgl))
+        if mesh is None:
+            continue
+        meshes.setdefault(sid, []).append(mesh)
+        modules[sid] = name
+    cache.end_step()
+    return meshes, modules
+
+
+def intercept(model, lstring, lscene):
+    """The body of :meth:`LightModel.intercept` for L-Py: see there."""
+    if lscene is None:
+        raise LpyLightError("intercept() got no scene (lscene is None): L-Py builds it only on the last step of a "
+                             "derive() unless the model calls frameDisplay(True) in StartEach — add "
+                             "'def StartEach(): frameDisplay(True)' to the .lpy file")
+    hits, misses = model.cache.hits, model.cache.misses
+    meshes, modules = shapes_by_module(lstring, lscene, set(model.organ_materials), model.cache)
+    organs = organs_from_meshes_by_id(meshes, modules, model)
+    step = model.run(organs)
+    step.reused, step.tessellated = model.cache.hits - hits, model.cache.misses - misses
+    model.last_step = step
+    model.last_organs = organs
+    write_parameters(lstring, step.organs, model.parameter)
+    if model.on_step is not None:
+        model.on_step(step, organs)
+    return lstring, lscene
