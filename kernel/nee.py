@@ -22,6 +22,12 @@ estimator is unbiased.  For organs the expected absorbed weight,
 Targets are discs and quads (transparent sensors: crossings from the front
 only) and meshes (receivers: organs, two-sided, or solid sensors, one-sided),
 sampled by triangle area.
+
+Near a target, 1/d² makes the estimate heavy-tailed (infinite variance as the
+vertex approaches the target).  So a vertex closer to a target than
+:data:`NEAR` times the target's bounding radius makes no next event for it, and
+the segment's real crossing of that target is counted instead — a fixed split
+of the path space, so still unbiased.
 """
 import math
 
@@ -35,6 +41,7 @@ from .sampling import frame
 
 T_DISC, T_QUAD, T_MESH2, T_MESH1 = 0, 1, 2, 3       # target kinds (MESH2: two-sided, MESH1: one-sided)
 DIFFUSE_R, DIFFUSE_T, ABSORB = 0, 2, 4
+NEAR = 3.0       # exclusion radius around a target, in its bounding radii
 INV_4PI = 1.0 / (4.0 * math.pi)
 
 # vertex modes
@@ -81,24 +88,40 @@ def _tri_area(c, i, j, k):
 
 
 @njit(cache=True)
-def next_event(vx, vy, vz, nx, ny, nz, mode, m, w, state, scene, occluded_fn, scratch, offset_rel,
-               tgt_kind, tgt_row, tgt_abs_row, tgt_ref, tgt_first, tgt_count, tgt_area,
+def next_event(vx, vy, vz, nx, ny, nz, mode, m, stat, w, state, scene, occluded_fn, scratch, offset_rel,
+               tgt_kind, tgt_row, tgt_abs_row, tgt_ref, tgt_first, tgt_count, tgt_area, tgt_center, tgt_near2,
                sens_center, sens_normal, sens_radius, sens_corners,
-               nee_tri, nee_cdf, tri_verts, tri_normal, tri_mat, mat_prob, contrib, out_k, out_w, counters):
+               nee_tri, nee_cdf, tri_verts, tri_normal, tri_mat, mat_prob, contrib, out_k, out_w, counters,
+               nee_stats, picks):
     """Expected deposits of the segment leaving vertex v on every target; returns how many were written.
 
     v (scene units) with unit normal n (for Lambertian emission: the emitter's
     normal; for a surface: the side the photon arrived from).  ``mode``:
     V_ISOTROPIC, V_LAMBERT or V_SURFACE (material m).  ``w`` (B,) the photon's
     weights.  Deposits go to ``out_k[i]`` (tally row) and ``out_w[i, :]`` for
-    i < the returned count (at most 2 per target).
+    i < the returned count (at most 2 per target).  ``nee_stats[stat]`` counts
+    shadow rays cast and found unblocked, and sums the weight they deposit (to switch off vertices that never
+    see a target: see :func:`lpy_light.simulate.KernelScene.prune_next_events`).
+    ``picks`` > 0: only that many targets, drawn uniformly (with replacement),
+    each deposit scaled by n_targets / picks — unbiased, and a vertex then
+    costs ``picks`` shadow rays instead of one per target.
     """
     n_bands = w.shape[0]
     vmag = max(abs(vx), abs(vy), abs(vz))
     n_out = 0
-    for t in range(tgt_kind.shape[0]):
+    n_tgt = tgt_kind.shape[0]
+    if picks > 0 and picks < n_tgt:
+        n_iter, scale = picks, n_tgt / picks
+    else:
+        n_iter, scale = n_tgt, 1.0
+    for j in range(n_iter):
+        t = j if scale == 1.0 else min(int(uniform(state) * n_tgt), n_tgt - 1)
         kind = tgt_kind[t]
         u1, u2, u3 = uniform(state), uniform(state), uniform(state)
+        ex, ey, ez = vx - tgt_center[t, 0], vy - tgt_center[t, 1], vz - tgt_center[t, 2]
+        if ex * ex + ey * ey + ez * ez < tgt_near2[t]:
+            continue          # too close: 1/d² would be heavy-tailed; this segment's crossings are counted
+        # (out_k, out_w hold at most 2 per iteration: size them 2 * max(picks, n_targets))
         g = -1
         if kind == T_DISC:
             s = tgt_ref[t]
@@ -146,7 +169,7 @@ def next_event(vx, vy, vz, nx, ny, nz, mode, m, w, state, scene, occluded_fn, sc
         cos_x = dx * mx + dy * my + dz * mz
         if kind != T_MESH2 and cos_x >= 0.0:
             continue          # sensors and one-sided receivers are met from the front only
-        geom = tgt_area[t] * abs(cos_x) / dist2
+        geom = scale * tgt_area[t] * abs(cos_x) / dist2
         cos_v = dx * nx + dy * ny + dz * nz
         if mode == V_ISOTROPIC:
             for b in range(n_bands):
@@ -172,12 +195,15 @@ def next_event(vx, vy, vz, nx, ny, nz, mode, m, w, state, scene, occluded_fn, sc
         if tfar <= 0.0:
             continue
         counters[4] += 1
+        nee_stats[stat, 0] += 1
         if not visible(occluded_fn, scene, scratch, vx + side * eps * nx, vy + side * eps * ny,
                        vz + side * eps * nz, dx, dy, dz, tfar):
             continue
+        nee_stats[stat, 1] += 1
         out_k[n_out] = tgt_row[t]
         for b in range(n_bands):
             out_w[n_out, b] = contrib[b]
+            nee_stats[stat, 2] += contrib[b]
         n_out += 1
         if tgt_abs_row[t] >= 0:
             mm = tri_mat[g, 0] if cos_x < 0.0 else tri_mat[g, 1]
@@ -188,15 +214,21 @@ def next_event(vx, vy, vz, nx, ny, nz, mode, m, w, state, scene, occluded_fn, sc
     return n_out
 
 
-def build_targets(n_sensors, sens_kind, sens_area, n_receivers_rows, tri_receiver, tri_verts, tri_two_sided,
-                  receiver_row0, absorbed_row0, sensors=True, receivers=True):
+def build_targets(n_sensors, sens_kind, sens_area, sens_center, sens_bound, n_receivers_rows, tri_receiver, tri_verts,
+                  tri_two_sided, receiver_row0, absorbed_row0, sensors=True, receivers=True):
     """Target arrays for :func:`next_event` (see there); numpy, outside the hot loop.
 
     ``tri_receiver`` (T,) receiver index per kernel triangle or -1;
     ``tri_two_sided`` (T,) bool.  Receiver r's incident row is
     ``receiver_row0 + r`` and absorbed row ``absorbed_row0 + r``.
+    ``sens_bound`` (S,) a sensor's bounding radius about its centre.
+
+    Returns the target arrays, then ``sensor_target`` (S,) and
+    ``receiver_target`` (R,): each one's target index or -1.
     """
-    kind, row, abs_row, ref, first, count, area = [], [], [], [], [], [], []
+    kind, row, abs_row, ref, first, count, area, center, near2 = [], [], [], [], [], [], [], [], []
+    sensor_target = np.full(n_sensors, -1, np.int64)
+    receiver_target = np.full(n_receivers_rows, -1, np.int64)
     nee_tri, nee_cdf = [], []
     if sensors:
         for s in range(n_sensors):
@@ -207,6 +239,9 @@ def build_targets(n_sensors, sens_kind, sens_area, n_receivers_rows, tri_receive
             first.append(0)
             count.append(0)
             area.append(float(sens_area[s]))
+            center.append(sens_center[s])
+            near2.append(float((NEAR * sens_bound[s]) ** 2))
+            sensor_target[s] = len(kind) - 1
     if receivers and n_receivers_rows:
         tri_area = 0.5 * np.linalg.norm(np.cross(tri_verts[:, 1] - tri_verts[:, 0], tri_verts[:, 2] - tri_verts[:, 0]),
                                         axis=1)
@@ -230,7 +265,13 @@ def build_targets(n_sensors, sens_kind, sens_area, n_receivers_rows, tri_receive
             cdf[-1] = 1.0 + 1e-12
             nee_tri.extend(tris.tolist())
             nee_cdf.extend(cdf.tolist())
+            pts = tri_verts[tris].reshape(-1, 3)
+            lo_, hi_ = pts.min(axis=0), pts.max(axis=0)
+            center.append((lo_ + hi_) / 2)
+            near2.append(float((NEAR * np.linalg.norm(hi_ - lo_) / 2) ** 2))
+            receiver_target[r] = len(kind) - 1
     i64 = lambda x: np.ascontiguousarray(x, dtype=np.int64)
-    return (np.ascontiguousarray(kind, dtype=np.int32), i64(row), i64(abs_row), i64(ref), i64(first), i64(count),
-            np.ascontiguousarray(area, dtype=np.float64), i64(nee_tri if nee_tri else np.zeros(0)),
-            np.ascontiguousarray(nee_cdf if nee_cdf else np.zeros(0), dtype=np.float64))
+    f64 = lambda x: np.ascontiguousarray(x, dtype=np.float64)
+    return ((np.ascontiguousarray(kind, dtype=np.int32), i64(row), i64(abs_row), i64(ref), i64(first), i64(count),
+             f64(area), f64(np.reshape(center, (-1, 3))), f64(near2), i64(nee_tri if nee_tri else np.zeros(0)),
+             f64(nee_cdf if nee_cdf else np.zeros(0))), sensor_target, receiver_target)

@@ -120,6 +120,18 @@ def _inside(s, px, py, pz, kind, center, radius, corners, normal):
 
 
 @njit(inline="always", cache=True)
+def _counted(skip, t, x, y, z, tgt_center, tgt_near2):
+    """Is a crossing of target t counted on a segment that starts at vertex (x, y, z)?
+
+    Always when the segment is not covered by next events (``skip`` False),
+    else only when the vertex was too near target t for a next event."""
+    if not skip or t < 0:
+        return True
+    ex, ey, ez = x - tgt_center[t, 0], y - tgt_center[t, 1], z - tgt_center[t, 2]
+    return ex * ex + ey * ey + ez * ez < tgt_near2[t]
+
+
+@njit(inline="always", cache=True)
 def _binary_search(cdf, u):
     lo, hi = 0, cdf.shape[0] - 1
     while lo < hi:
@@ -180,8 +192,9 @@ def trace_chunk(scene, intersect_fn, scratch, seed, first, count,
                 emit_kind, emit_data, emit_cdf,
                 max_depth, offset_rel, n_receivers, expected_absorption,
                 occluded_fn, nee_sensors, nee_receivers, tgt_kind, tgt_row, tgt_abs_row, tgt_ref, tgt_first,
-                tgt_count, tgt_area, nee_tri, nee_cdf, tri_verts,
-                tally, tally_sq, counters):
+                tgt_count, tgt_area, tgt_center, tgt_near2, nee_tri, nee_cdf, sensor_target, receiver_target,
+                tri_verts, mat_nee, emit_nee, picks,
+                tally, tally_sq, counters, nee_stats):
     """Trace photons ``first .. first+count-1``; add what they do to the output arrays.
 
     Parameters (T triangles, M materials, B bands, S sensors, E emitter elements,
@@ -212,9 +225,14 @@ def trace_chunk(scene, intersect_fn, scratch, seed, first, count,
     nee_sensors, nee_receivers : bool, whether sensors / receivers are
         next-event targets (:mod:`kernel.nee`); their crossings and hits after
         diffuse vertices are then not counted, the targets' expected values are.
-    tgt_*, nee_tri, nee_cdf : next-event targets (:func:`kernel.nee.build_targets`);
-        empty arrays for none.
+    tgt_*, nee_tri, nee_cdf, sensor_target, receiver_target : next-event
+        targets (:func:`kernel.nee.build_targets`); empty arrays for none.
     tri_verts : (T, 3, 3) float64, triangle vertices (to sample points on receivers).
+    mat_nee (M,), emit_nee (E,) : uint8, next events from this material's
+        surfaces / this emitter element (0: its segments are counted instead).
+    picks : int, targets per next event (0: all; see :func:`kernel.nee.next_event`).
+    nee_stats : (M + E, 3) float64, shadow rays cast, unblocked, and the weight
+        they deposit, per material then per emitter element.
     tally, tally_sq : (K + M + 4, B) float64, expected hits and sum of squared
         per-photon contributions: rows [0, S) sensor crossings, [S, S+R)
         receiver incident, [S+R, K) receiver absorbed, then fates from row K:
@@ -233,8 +251,8 @@ def trace_chunk(scene, intersect_fn, scratch, seed, first, count,
     dep = np.empty(n_bands)
     n_tgt = tgt_kind.shape[0]
     contrib = np.empty(n_bands)
-    out_k = np.empty(2 * n_tgt + 1, dtype=np.int64)
-    out_w = np.empty((2 * n_tgt + 1, n_bands))
+    out_k = np.empty(2 * max(n_tgt, picks) + 1, dtype=np.int64)
+    out_w = np.empty((2 * max(n_tgt, picks) + 1, n_bands))
     hit_k = np.empty(HIT_CAP, dtype=np.int64)
     hit_w = np.empty((HIT_CAP, n_bands))
     seen = np.empty(CAND_CAP, dtype=np.int64)
@@ -250,11 +268,13 @@ def trace_chunk(scene, intersect_fn, scratch, seed, first, count,
         nh = 0
         depth = 0
         after_diffuse = False   # does the current segment start at a next-event vertex?
-        if n_tgt > 0:
-            n_out = next_event(ox, oy, oz, enx, eny, enz, emode, 0, w, state, scene, occluded_fn, scratch,
+        vx0, vy0, vz0 = ox, oy, oz   # that vertex
+        if n_tgt > 0 and emit_nee[e] != 0:
+            n_out = next_event(ox, oy, oz, enx, eny, enz, emode, 0, n_mat + e, w, state, scene, occluded_fn, scratch,
                                offset_rel, tgt_kind, tgt_row, tgt_abs_row, tgt_ref, tgt_first, tgt_count, tgt_area,
-                               sens_center, sens_normal, sens_radius, sens_corners, nee_tri, nee_cdf, tri_verts,
-                               tri_normal, tri_mat, mat_prob, contrib, out_k, out_w, counters)
+                               tgt_center, tgt_near2, sens_center, sens_normal, sens_radius, sens_corners, nee_tri, nee_cdf, tri_verts,
+                               tri_normal, tri_mat, mat_prob, contrib, out_k, out_w, counters, nee_stats,
+                               picks)
             for a in range(n_out):
                 nh = _record(out_k[a], out_w[a], hit_k, hit_w, nh, tally, tally_sq, fate0, counters)
             after_diffuse = True
@@ -303,8 +323,9 @@ def trace_chunk(scene, intersect_fn, scratch, seed, first, count,
                       + (sens_center[s, 2] - oz) * snz) / den
                 if ts <= 0.0 or ts >= t:
                     continue
-                if not skip_sensors and _inside(s, ox + ts * dx, oy + ts * dy, oz + ts * dz,
-                                                sens_kind, sens_center, sens_radius, sens_corners, sens_normal):
+                if _counted(skip_sensors, sensor_target[s] if skip_sensors else -1, vx0, vy0, vz0, tgt_center,
+                            tgt_near2) and _inside(s, ox + ts * dx, oy + ts * dy, oz + ts * dz,
+                                                   sens_kind, sens_center, sens_radius, sens_corners, sens_normal):
                     nh = _record(s, w, hit_k, hit_w, nh, tally, tally_sq, fate0, counters)
 
             if gid == INVALID_ID:
@@ -323,7 +344,9 @@ def trace_chunk(scene, intersect_fn, scratch, seed, first, count,
                 nh = _record(f_lost, w, hit_k, hit_w, nh, tally, tally_sq, fate0, counters)
                 break
             rec = tri_receiver[tri]
-            rec_analog = rec >= 0 and not skip_receivers   # else the next-event tallies cover this hit
+            # counted unless the next-event tallies cover this hit
+            rec_analog = rec >= 0 and _counted(skip_receivers, receiver_target[rec] if skip_receivers else -1,
+                                               vx0, vy0, vz0, tgt_center, tgt_near2)
             if rec_analog:
                 nh = _record(n_sens + rec, w, hit_k, hit_w, nh, tally, tally_sq, fate0, counters)
             if depth >= max_depth:
@@ -335,11 +358,12 @@ def trace_chunk(scene, intersect_fn, scratch, seed, first, count,
                 nh = _record(fate0 + m, dep, hit_k, hit_w, nh, tally, tally_sq, fate0, counters)
                 if rec_analog:
                     nh = _record(absorbed0 + rec, dep, hit_k, hit_w, nh, tally, tally_sq, fate0, counters)
-            if n_tgt > 0:   # expected light of the next segment if it leaves diffusely
-                n_out = next_event(px, py, pz, nx, ny, nz, V_SURFACE, m, w, state, scene, occluded_fn, scratch,
+            if n_tgt > 0 and mat_nee[m] != 0:   # expected light of the next segment if it leaves diffusely
+                n_out = next_event(px, py, pz, nx, ny, nz, V_SURFACE, m, m, w, state, scene, occluded_fn, scratch,
                                    offset_rel, tgt_kind, tgt_row, tgt_abs_row, tgt_ref, tgt_first, tgt_count,
-                                   tgt_area, sens_center, sens_normal, sens_radius, sens_corners, nee_tri, nee_cdf,
-                                   tri_verts, tri_normal, tri_mat, mat_prob, contrib, out_k, out_w, counters)
+                                   tgt_area, tgt_center, tgt_near2, sens_center, sens_normal, sens_radius, sens_corners, nee_tri, nee_cdf,
+                                   tri_verts, tri_normal, tri_mat, mat_prob, contrib, out_k, out_w, counters,
+                                   nee_stats, picks)
                 for a in range(n_out):
                     nh = _record(out_k[a], out_w[a], hit_k, hit_w, nh, tally, tally_sq, fate0, counters)
 
@@ -359,7 +383,8 @@ def trace_chunk(scene, intersect_fn, scratch, seed, first, count,
                 nh = _record(fate0 + m, w, hit_k, hit_w, nh, tally, tally_sq, fate0, counters)
                 break
             depth += 1
-            after_diffuse = n_tgt > 0 and (ev == DIFFUSE_R or ev == DIFFUSE_T)
+            after_diffuse = n_tgt > 0 and mat_nee[m] != 0 and (ev == DIFFUSE_R or ev == DIFFUSE_T)
+            vx0, vy0, vz0 = px, py, pz
             u1, u2 = uniform(state), uniform(state)
             if ev == DIFFUSE_R:
                 dx, dy, dz = cosine_hemisphere(nx, ny, nz, u1, u2)

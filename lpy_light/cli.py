@@ -59,6 +59,8 @@ def _parser() -> argparse.ArgumentParser:
                         "growing), nee (weighted + next-event tallies on sensors and receivers: far fewer "
                         "photons for the same precision) or analog (SEC2's counting: one photon, one event)")
     r.add_argument("--quiet", action="store_true", help="no progress lines")
+    r.add_argument("--nee-picks", type=int, default=1, metavar="K",
+                   help="with --estimator nee: targets per next event, drawn at random (default 1; 0 = all)")
     sub.add_parser("scenes", help="list the built-in scenes")
     return p
 
@@ -73,6 +75,11 @@ def cmd_run(args) -> int:
     path = resolve_scene(args.scene)
     chamber = load_scene(path)
     kscene = simulate.KernelScene(chamber, estimator=args.estimator)
+    if args.nee_picks < 0:
+        raise InputError("--nee-picks must be >= 0")
+    kscene.nee_picks = args.nee_picks
+    if args.estimator == "nee":
+        kscene.prune_next_events(threads=args.threads)
     stop = threading.Event()
 
     def on_term(signum, frame):

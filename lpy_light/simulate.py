@@ -40,7 +40,7 @@ class Result:
     photons: int
     tally: np.ndarray
     tally_sq: np.ndarray
-    counters: np.ndarray
+    counters: np.ndarray         # rays, candidate overflows, scratch flushes, lost, shadow rays
     seconds: float
     threads: int
     seed: int
@@ -48,6 +48,7 @@ class Result:
     n_receivers: int
     estimator: str = "weighted"
     materials: list = field(default_factory=list)   # names of the fate rows' materials
+    nee_stats: np.ndarray | None = None   # (M + E, 3) shadow rays cast, unblocked, weight deposited
     partial: bool = False
     extra: dict = field(default_factory=dict)
 
@@ -115,6 +116,7 @@ class KernelScene:
         self.estimator = estimator
         # next-event tallies (estimator "nee"): which targets get expected values instead of counts
         self.nee_sensors = self.nee_receivers = estimator == "nee"
+        self.nee_picks = 1          # targets per next event, drawn at random (0: all of them)
         tris = chamber.triangles
         area = 0.5 * np.linalg.norm(np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0]), axis=1)
         keep = np.isfinite(tris).all(axis=(1, 2)) & (area > 0)
@@ -145,6 +147,8 @@ class KernelScene:
         self.n_bands = chamber.n_bands
         self.intersect = embree.intersect1_address()
         self.occluded = embree.occluded1_address()
+        self.emit_nee = np.ones(len(em.kind), np.uint8)
+        self.mat_nee = np.ones(0, np.uint8)
         self.organs = []
         self._assemble(np.zeros((0, 3, 3)), np.zeros((0, 2), np.int32), np.zeros(0, np.int32))
 
@@ -159,14 +163,62 @@ class KernelScene:
             self.materials, self.chamber.physics.specular, "analog" if self.estimator == "analog" else "weighted")
         self.n_receivers = self.n_chamber_receivers + len(self.organs)
         self.n_rows = self.n_sensors + 2 * self.n_receivers + len(self.materials) + 4
+        if len(self.mat_nee) < len(self.materials):     # new materials start with next events on
+            self.mat_nee = np.concatenate([self.mat_nee, np.ones(len(self.materials) - len(self.mat_nee), np.uint8)])
         self.retarget()
 
     def retarget(self):
         """Rebuild the next-event target arrays after a change of organs or of ``nee_*`` flags."""
-        self.targets = build_targets(self.n_sensors, self.sens[0], self.chamber.sensors.area, self.n_receivers, self.tri_receiver,
-                                     self.tri_verts, self.two_sided, self.n_sensors,
-                                     self.n_sensors + self.n_receivers,
-                                     sensors=self.nee_sensors, receivers=self.nee_receivers)
+        sensors = self.chamber.sensors
+        if len(sensors):
+            half_diag = np.linalg.norm(sensors.corners - sensors.center[:, None, :], axis=2).max(axis=1)
+            bound = np.where(sensors.kind == 0, sensors.radius, half_diag)
+        else:
+            bound = np.zeros(0)
+        targets, sensor_target, receiver_target = build_targets(
+            self.n_sensors, self.sens[0], sensors.area, sensors.center, bound, self.n_receivers, self.tri_receiver,
+            self.tri_verts, self.two_sided, self.n_sensors, self.n_sensors + self.n_receivers,
+            sensors=self.nee_sensors, receivers=self.nee_receivers)
+        # kernel order: tgt_kind .. tgt_area, tgt_center, tgt_near2, nee_tri, nee_cdf, sensor_target, receiver_target
+        self.targets = tuple(targets) + (sensor_target, receiver_target)
+
+    def prune_next_events(self, photons: int = 8192, max_share: float = 1e-3, seed: int = 987654321,
+                          threads=None) -> dict:
+        """Switch off next events from vertices whose shadow rays bring (almost) nothing.
+
+        A pilot run sums, per material and per emitter element, the shadow rays
+        cast and the weight they deposit on targets.  Sources are switched off
+        (their segments counted instead), cheapest-to-lose first, while the
+        weight they carry stays below ``max_share`` of the total — e.g. lamps
+        and mirrors inside a lamp box behind a diffuser, whose shadow rays are
+        all blocked.  Either choice is unbiased; this only saves shadow rays.
+        Returns ``{name: (share of shadow rays, share of deposit)}`` of the pilot
+        and the names switched off under ``"off"``.
+        """
+        if not (self.nee_sensors or self.nee_receivers):
+            return {}
+        self.mat_nee[:] = 1
+        self.emit_nee[:] = 1
+        stats = run(self, photons, seed=seed, threads=threads).nee_stats
+        M = len(self.materials)
+        cast, weight = stats[:, 0], stats[:, 2]
+        total_w, total_c = max(weight.sum(), 1e-300), max(cast.sum(), 1.0)
+        on = np.ones(len(stats), bool)
+        lost = 0.0
+        for i in np.argsort(weight / np.maximum(cast, 1.0)):    # least weight per ray first
+            if cast[i] == 0:
+                continue
+            if lost + weight[i] > max_share * total_w:
+                break
+            on[i] = False
+            lost += weight[i]
+        self.mat_nee = np.ascontiguousarray(on[:M], dtype=np.uint8)
+        self.emit_nee = np.ascontiguousarray(on[M:], dtype=np.uint8)
+        names = [m.name for m in self.materials] + ["lamp element %d" % e for e in range(len(self.emit_nee))]
+        report = {names[i]: (float(cast[i] / total_c), float(weight[i] / total_w)) for i in range(len(stats))
+                  if cast[i] > 0}
+        report["off"] = [names[i] for i in range(len(stats)) if not on[i] and cast[i] > 0]
+        return report
 
     def material_index(self, material) -> int:
         """Index of ``material`` (a :class:`~lpy_light.materials.Material`), added if new (by name)."""
@@ -199,16 +251,17 @@ class KernelScene:
         self.scene.set_organs(tris)
 
     def trace(self, seed: int, first: int, count: int):
-        """Trace one chunk; returns (tally, tally_sq, counters)."""
+        """Trace one chunk; returns (tally, tally_sq, counters, nee_stats)."""
         out = (np.zeros((self.n_rows, self.n_bands)), np.zeros((self.n_rows, self.n_bands)),
-               np.zeros(N_COUNTERS, np.int64))
+               np.zeros(N_COUNTERS, np.int64), np.zeros((len(self.materials) + len(self.emit_nee), 3)))
         scratch = embree.new_scratch()
         phys = self.chamber.physics
         trace_chunk(self.scene.handle, self.intersect, scratch.ctypes.data, seed, first, count,
                     self.geom_offset, self.tri_normal, self.tri_mat, self.tri_receiver,
                     self.mat_prob, self.mat_cum, self.mat_phong, *self.sens, *self.emit,
                     phys.max_depth, phys.offset, self.n_receivers, self.estimator != "analog",
-                    self.occluded, self.nee_sensors, self.nee_receivers, *self.targets, self.tri_verts, *out)
+                    self.occluded, self.nee_sensors, self.nee_receivers, *self.targets, self.tri_verts,
+                    self.mat_nee, self.emit_nee, self.nee_picks, *out)
         return out
 
 
@@ -228,7 +281,7 @@ def run(kscene: KernelScene, photons: int, seed: int = 1, threads: int | None = 
         raise ValueError("photons must be >= 1")
     threads = threads or default_threads()
     acc = [np.zeros((kscene.n_rows, kscene.n_bands)), np.zeros((kscene.n_rows, kscene.n_bands)),
-           np.zeros(N_COUNTERS, np.int64)]
+           np.zeros(N_COUNTERS, np.int64), np.zeros((len(kscene.materials) + len(kscene.emit_nee), 3))]
     chunks = [(c * CHUNK, min(CHUNK, photons - c * CHUNK)) for c in range(math.ceil(photons / CHUNK))]
     done = 0
     partial = False
@@ -260,7 +313,8 @@ def run(kscene: KernelScene, photons: int, seed: int = 1, threads: int | None = 
                 fut.cancel()
     seconds = time.perf_counter() - start
     return Result(done, acc[0], acc[1], acc[2], seconds, threads, seed, kscene.n_sensors, kscene.n_receivers,
-                  estimator=kscene.estimator, materials=[m.name for m in kscene.materials], partial=partial)
+                  estimator=kscene.estimator, materials=[m.name for m in kscene.materials], nee_stats=acc[3],
+                  partial=partial)
 
 
 def progress_printer(stream=sys.stderr, every: float = 2.0):
