@@ -113,7 +113,7 @@ class LightModel:
 
     def __init__(self, scene="angers-12bands", organs=None, photons: int = 300_000, seed: int = 1,
                  threads: int | None = None, plant_unit: str = "cm", position=None, parameter: str = "light",
-                 estimator: str = "weighted", lamp_flux=None, normalisation_photons: int = 2_000_000,
+                 estimator: str = "nee", lamp_flux=None, normalisation_photons: int = 200_000,
                  progress=None):
         from .cli import resolve_scene
 
@@ -127,6 +127,7 @@ class LightModel:
         self.parameter = parameter
         self.progress = progress
         self.kscene = simulate.KernelScene(self.chamber, estimator=estimator)
+        self._pruned = False
         self.materials: dict = {}
         for spec in self.organ_materials.values():
             self._materials_of(spec)
@@ -166,6 +167,7 @@ class LightModel:
         if ch.spectrum is None or ch.bands is None or len(ch.sensors) == 0:
             raise InputError("the light model needs the lamps' photon flux: give lamp_flux=[µmol/s per band] or "
                              "a scene with 'spectrum', 'bands' and reference sensors", ch.source or None)
+        self.kscene.prune_next_events(threads=self.threads)
         result = simulate.run(self.kscene, n, seed=self.seed + 7919, threads=self.threads)
         photons, std = result.sensors()
         norm = units.from_spectrum(photons, std, ch.sensors.area * ch.metres_per_unit ** 2, ch.spectrum, ch.bands)
@@ -202,6 +204,11 @@ class LightModel:
         n = int(photons or self.photons)
         t0 = time.perf_counter()
         self.kscene.set_organs(organs, self.materials)
+        self.kscene.nee_sensors = False       # steps report organs; sensors are counted, not targeted
+        self.kscene.retarget()
+        if not self._pruned and organs:       # once, with the first plant: which vertices see organs
+            self.kscene.prune_next_events(threads=self.threads)
+            self._pruned = True
         result = simulate.run(self.kscene, n, seed=self.seed + self.step, threads=self.threads,
                               progress=self.progress)
         lights = organ_lights(self.kscene, result, organs, self.flux, self.flux_std, self.chamber)
