@@ -9,3 +9,11 @@ Quick start::
     photons, photons_std = result.sensors()          # (S, B) each
 """
 __version__ = "0.1.0"
+
+
+def __getattr__(name):
+    # LightModel is imported lazily so that ``import lpy_light`` stays light
+    if name == "LightModel":
+        from .light import LightModel
+        return LightModel
+    raise AttributeError(name)

@@ -1,6 +1,7 @@
 """The ``lpy-light`` command line.
 
     lpy-light run SCENE.toml [--photons N] [--seed S] [--threads T] --out DIR
+    lpy-light grow MODEL.lpy --steps N [--photons P] --out DIR   # needs L-Py (conda)
     lpy-light scenes                       # list the built-in scenes
 
 SCENE may be a path or the name of a built-in scene (``angers``,
@@ -10,6 +11,7 @@ SCENE may be a path or the name of a built-in scene (``angers``,
 from __future__ import annotations
 
 import argparse
+import json
 import logging
 import signal
 import sys
@@ -62,6 +64,7 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--nee-picks", type=int, default=1, metavar="K",
                    help="with --estimator nee: targets per next event, drawn at random (default 1; 0 = all)")
     sub.add_parser("scenes", help="list the built-in scenes")
+    _grow_parser(sub)
     return p
 
 
@@ -109,6 +112,76 @@ def cmd_run(args) -> int:
     return 130 if result.partial else 0
 
 
+def _grow_parser(sub):
+    g = sub.add_parser("grow", help="grow an L-Py model that calls LightModel.intercept() in EndEach; "
+                                    "write organs.csv and a picture of the last step (needs L-Py, from conda)")
+    g.add_argument("model", help=".lpy file")
+    g.add_argument("--steps", type=_count, required=True, help="derivation steps")
+    g.add_argument("--photons", type=_count, default=None, help="photons per step (default: the model's)")
+    g.add_argument("--threads", type=int, default=None, help="threads (default: all cores)")
+    g.add_argument("--out", required=True, help="output folder")
+    g.add_argument("--quiet", action="store_true", help="no progress lines")
+
+
+def cmd_grow(args) -> int:
+    from . import light as lightmod
+    from .lpy import require_lpy
+    from .results import atomic_write, csv_text
+
+    path = Path(args.model)
+    if not path.is_file():
+        raise InputError("L-Py model not found", path)
+    lpy = require_lpy()
+    before = len(lightmod.MODELS)
+    variables = {"STEPS": args.steps}
+    if args.photons:
+        variables["PHOTONS"] = args.photons
+    try:
+        lsys = lpy.Lsystem(str(path), variables)
+    except Exception as exc:    # L-Py reports syntax errors as generic exceptions
+        raise InputError("L-Py could not read the model: %s" % str(exc).splitlines()[0], path) from None
+    if len(lightmod.MODELS) == before:
+        raise InputError("the model creates no lpy_light.LightModel (see lsystems/rose.lpy)", path)
+    model = lightmod.MODELS[-1]
+    if args.photons:
+        model.photons = args.photons
+    if args.threads:
+        model.threads = args.threads
+    rows, steps = [], []
+
+    def on_step(step, organs):
+        rows.extend(lightmod.organ_rows(step))
+        steps.append({"step": step.step, "organs": len(step.organs), "triangles": step.triangles,
+                      "seconds": step.seconds, "tessellated": step.tessellated, "reused": step.reused})
+        if not args.quiet:
+            print("  step %d: %d organs, %d triangles, %.2f s (%d organs re-tessellated, %d reused)"
+                  % (step.step, len(step.organs), step.triangles, step.seconds, step.tessellated, step.reused),
+                  file=sys.stderr, flush=True)
+
+    model.on_step = on_step
+    partial = False
+    lstring = lsys.axiom
+    try:
+        for i in range(args.steps):
+            lstring = lsys.derive(lstring, i, 1)
+    except KeyboardInterrupt:
+        partial = True
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    atomic_write(out / "organs.csv", csv_text(rows))
+    summary = {"model": str(path), "steps": steps, "partial": partial, "photons_per_step": model.photons,
+               "bands": model.chamber.band_labels, "plant_unit_m": model.scale * model.chamber.metres_per_unit}
+    atomic_write(out / "summary.json", json.dumps(summary, indent=2, default=float) + "\n")
+    if model.last_step is not None:
+        try:
+            from .plant_view import plant_picture
+            plant_picture(out / "plant.png", model.last_organs, model.last_step.organs,
+                          title="%s, step %d" % (path.stem, model.last_step.step))
+        except ImportError:
+            logging.getLogger("lpy_light").warning("matplotlib not installed: no plant.png")
+    return 130 if partial else 0
+
+
 def main(argv=None) -> int:
     logging.basicConfig(format="lpy-light: warning: %(message)s", level=logging.WARNING)
     args = _parser().parse_args(argv)
@@ -119,6 +192,8 @@ def main(argv=None) -> int:
             return 0
         if args.command == "run":
             return cmd_run(args)
+        if args.command == "grow":
+            return cmd_grow(args)
     except LpyLightError as exc:
         print("lpy-light: error: %s" % exc, file=sys.stderr)
         return 2

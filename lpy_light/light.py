@@ -40,6 +40,7 @@ from .scene import UNITS, load_scene
 log = logging.getLogger("lpy_light")
 
 LEAF = ("FeuilleVieille_Sup", "FeuilleVieille_Inf")   # upper side, lower side (Angers optical tables)
+MODELS: list = []      # every LightModel made in this process, newest last (``lpy-light grow`` finds the model's)
 
 
 @dataclass
@@ -137,6 +138,7 @@ class LightModel:
         self.last_step = None
         self.last_organs = []
         self.flux, self.flux_std = self._lamp_flux(lamp_flux, normalisation_photons)
+        MODELS.append(self)
 
     # -- set-up -------------------------------------------------------------------------
     def _default_position(self):

@@ -128,6 +128,12 @@ def geometry_key(geometry):
     for _ in range(32):
         kind = type(node).__name__
         if kind not in _KNOWN:
+            # a shared surface the model named (e.g. a leaf blade set with turtle.setSurface) is keyed
+            # by its name: name only geometry you do not modify afterwards
+            name = getattr(node, "name", "")
+            named = node.isNamed() if hasattr(node, "isNamed") else bool(name)
+            if named and isinstance(name, str) and name:
+                return tuple(parts) + (("named", kind, name),)
             return None
         parts.append(kind)
         for name in _FIELDS:
