@@ -26,8 +26,10 @@ Physics (SEC2's model, see ``docs/physics.md``):
   photon's current weight; receivers (solid sensors, organs) record each hit
   (incident) and the weight absorbed on them.
 
-Tallies are per photon first, then squared, so ``tally_sq`` gives the sample
-variance of per-photon contributions (a photon may cross a sensor twice).  The
+Tallies are per photon first, then multiplied band by band, so ``tally_prod``
+gives the sample covariance between bands of per-photon contributions (a photon
+may cross a sensor twice; all bands ride on the same photons, so a sum of bands
+such as PAR, or a ratio such as R:FR, needs the covariances for its σ).  The
 photon's fates (absorbed per material, escaped, cut, lost) are tallied the same
 way, in rows after the sensors, and a last row holds each photon's total
 deposit, whose mean is 1 per band: energy closure with its own standard error.
@@ -75,7 +77,7 @@ def _record(k, w, hit_k, hit_w, nh, tally, tally_sq, fate0, counters):
 
 @njit(cache=True)
 def _flush(nh, hit_k, hit_w, tally, tally_sq, fate0):
-    """Add one photon's contributions: sum per tally index, then add sums and squares.
+    """Add one photon's contributions: sum per tally index, then add sums and products between bands.
 
     Rows ``fate0 ..`` are fates; the last row receives the photon's total
     deposit (closure)."""
@@ -93,13 +95,15 @@ def _flush(nh, hit_k, hit_w, tally, tally_sq, fate0):
         for b in range(n_bands):
             x = hit_w[a, b]
             tally[k, b] += x
-            tally_sq[k, b] += x * x
+            for b2 in range(n_bands):
+                tally_sq[k, b, b2] += x * hit_w[a, b2]
             if k >= fate0:
                 tot[b] += x
     if nh > 0:
         for b in range(n_bands):
             tally[total_row, b] += tot[b]
-            tally_sq[total_row, b] += tot[b] * tot[b]
+            for b2 in range(n_bands):
+                tally_sq[total_row, b, b2] += tot[b] * tot[b2]
 
 
 @njit(inline="always", cache=True)
@@ -233,8 +237,8 @@ def trace_chunk(scene, intersect_fn, scratch, seed, first, count,
     picks : int, targets per next event (0: all; see :func:`kernel.nee.next_event`).
     nee_stats : (M + E, 3) float64, shadow rays cast, unblocked, and the weight
         they deposit, per material then per emitter element.
-    tally, tally_sq : (K + M + 4, B) float64, expected hits and sum of squared
-        per-photon contributions: rows [0, S) sensor crossings, [S, S+R)
+    tally (K + M + 4, B), tally_sq (K + M + 4, B, B) : float64, expected hits and
+        sums of products (band by band) of per-photon contributions: rows [0, S) sensor crossings, [S, S+R)
         receiver incident, [S+R, K) receiver absorbed, then fates from row K:
         weight absorbed per material (M rows), escaped, cut at max_depth, lost
         to numerical failure, and the photon's total deposit.

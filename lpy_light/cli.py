@@ -52,7 +52,10 @@ def _parser() -> argparse.ArgumentParser:
     sub = p.add_subparsers(dest="command", required=True)
     r = sub.add_parser("run", help="trace photons through a scene and write sensors.csv and summary.json")
     r.add_argument("scene", help="scene TOML file, or a built-in scene name (see 'lpy-light scenes')")
-    r.add_argument("--photons", type=_count, default=1_000_000, help="photons per band (default 1e6)")
+    r.add_argument("--photons", type=_count, default=None,
+                   help="photons (all bands travel together; default 1e6, or a cap of 1e10 with --precision)")
+    r.add_argument("--precision", type=float, default=None, metavar="REL",
+                   help="stop when every sensor's relative σ is at most REL (e.g. 0.01); --photons is then a cap")
     r.add_argument("--seed", type=int, default=1, help="random seed (default 1); results depend on it alone")
     r.add_argument("--threads", type=int, default=None, help="threads (default: all cores)")
     r.add_argument("--out", required=True, help="output folder")
@@ -75,6 +78,10 @@ def cmd_run(args) -> int:
 
     if args.threads is not None and args.threads < 1:
         raise InputError("--threads must be >= 1")
+    if args.precision is not None and not 0 < args.precision < 1:
+        raise InputError("--precision must be a relative σ in (0, 1), e.g. 0.01")
+    if args.photons is None:
+        args.photons = 10_000_000_000 if args.precision is not None else 1_000_000
     path = resolve_scene(args.scene)
     chamber = load_scene(path)
     kscene = simulate.KernelScene(chamber, estimator=args.estimator)
@@ -96,7 +103,7 @@ def cmd_run(args) -> int:
                   file=sys.stderr)
         result = simulate.run(kscene, args.photons, seed=args.seed, threads=args.threads,
                               progress=None if args.quiet else simulate.progress_printer(),
-                              stop=stop.is_set)
+                              stop=stop.is_set, precision=args.precision)
     finally:
         signal.signal(signal.SIGTERM, old)
     norm = None

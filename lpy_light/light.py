@@ -243,7 +243,6 @@ def organ_lights(kscene, result, organs, flux, flux_std, chamber) -> dict:
     ab, ab_std = result.receivers_absorbed()
     m2 = chamber.metres_per_unit ** 2
     labels = chamber.band_labels
-    par_cols = units.par_columns(chamber.bands)
     out = {}
 
     def scaled(x, sx, per):
@@ -253,19 +252,22 @@ def organ_lights(kscene, result, organs, flux, flux_std, chamber) -> dict:
         std = np.where(x > 0, np.abs(value) * np.sqrt(rel2), sx * flux / N / per)
         return value, std
 
+    rows = R0 + np.arange(len(organs))
+    cov = result.covariance(rows) if len(organs) else np.zeros((0, len(flux), len(flux)))
+    areas = np.array([o.area * m2 for o in organs])
+    scale = flux[None, :] / N / np.maximum(areas, 1e-300)[:, None]
+    scale_std = flux_std[None, :] / N / np.maximum(areas, 1e-300)[:, None]
+    par, par_std, rfr, rfr_std = units.par_and_rfr(inc[rows], cov, scale, scale_std, chamber.bands)
     for i, organ in enumerate(organs):
         r = R0 + i
-        area = organ.area * m2
-        ppfd, ppfd_std = scaled(inc[r], inc_std[r], area)
+        ppfd, ppfd_std = scaled(inc[r], inc_std[r], areas[i])
         absorbed, absorbed_std = scaled(ab[r], ab_std[r], 1.0)
-        light = OrganLight(organ.key, organ.module, labels, area, inc[r].copy(), inc_std[r].copy(),
+        light = OrganLight(organ.key, organ.module, labels, areas[i], inc[r].copy(), inc_std[r].copy(),
                            ppfd, ppfd_std, absorbed, absorbed_std)
-        if par_cols is not None:
-            light.par = float(ppfd[par_cols].sum())
-            light.par_std = float(np.sqrt((ppfd_std[par_cols] ** 2).sum()))
-        rfr, rfr_std = units.red_far_red(ppfd[None, :], ppfd_std[None, :], chamber.bands)
+        if par is not None:
+            light.par, light.par_std = float(par[i]), float(par_std[i])
         if rfr is not None:
-            light.rfr, light.rfr_std = float(rfr[0]), float(rfr_std[0])
+            light.rfr, light.rfr_std = float(rfr[i]), float(rfr_std[i])
         out[organ.key] = light
     return out
 

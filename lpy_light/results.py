@@ -79,22 +79,24 @@ def sensor_table(chamber, result, norm=None) -> list:
 
 
 def derived_table(chamber, result, norm) -> list:
-    """Per sensor: PAR and R:FR (µmol m⁻² s⁻¹, ratio) when the bands allow them."""
+    """Per sensor: PAR and R:FR (µmol m⁻² s⁻¹, ratio) when the bands allow them; σ with the bands' covariance."""
     if norm is None or chamber.bands is None:
         return []
-    photons, std = result.sensors()
+    S = len(chamber.sensors)
     area_m2 = chamber.sensors.area * chamber.metres_per_unit ** 2
-    value, vstd = units.ppfd(photons, std, area_m2, norm)
-    par = units.par_columns(chamber.bands)
-    rfr, rfr_std = units.red_far_red(value, vstd, chamber.bands)
+    scale = norm.scale[None, :] / area_m2[:, None]
+    scale_std = norm.scale_std[None, :] / area_m2[:, None]
+    rows_idx = np.arange(S)
+    par, par_std, rfr, rfr_std = units.par_and_rfr(result.tally[rows_idx], result.covariance(rows_idx), scale,
+                                                   scale_std, chamber.bands)
     if par is None and rfr is None:
         return []
     rows = []
-    for s in range(len(value)):
+    for s in range(S):
         row = {"sensor": s}
         if par is not None:
-            row["par"] = value[s, par].sum()
-            row["par_std"] = np.sqrt((vstd[s, par] ** 2).sum())   # bands positively correlated: a lower bound
+            row["par"] = par[s]
+            row["par_std"] = par_std[s]
         if rfr is not None:
             row["r_fr"] = rfr[s]
             row["r_fr_std"] = rfr_std[s]
@@ -142,6 +144,7 @@ def write_run(out_dir, chamber, result, norm=None, extra=None) -> dict:
     }
     if norm is not None:
         summary["normalisation"] = {"how": norm.how, "scale": norm.scale.tolist(), "scale_std": norm.scale_std.tolist()}
+    summary.update(result.extra)
     if extra:
         summary.update(extra)
     files = {"sensors.csv": csv_text(sensor_table(chamber, result, norm))}

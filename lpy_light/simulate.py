@@ -34,12 +34,14 @@ class Result:
     photons emitted — rows: S sensors, R receiver incident, R receiver
     absorbed, then the fates: M materials (absorbed), escaped, cut at max
     depth, lost, and the per-photon total (closure: N in expectation);
-    ``tally_sq`` the sums of squared per-photon contributions.
+    ``tally_prod`` (rows, B, B) the sums of products between bands of
+    per-photon contributions (covariances: a sum of bands or a ratio of two
+    gets an honest σ from :meth:`combination`).
     """
 
     photons: int
     tally: np.ndarray
-    tally_sq: np.ndarray
+    tally_prod: np.ndarray
     counters: np.ndarray         # rays, candidate overflows, scratch flushes, lost, shadow rays
     seconds: float
     threads: int
@@ -81,6 +83,26 @@ class Result:
     def tally_std(self) -> np.ndarray:
         """Standard error of each tally, (K, B)."""
         return self._std(self.tally, self.tally_sq, self.photons)
+
+    @property
+    def tally_sq(self) -> np.ndarray:
+        """Sums of squared per-photon contributions, (rows, B): the diagonal of ``tally_prod``."""
+        return np.diagonal(self.tally_prod, axis1=1, axis2=2)
+
+    def covariance(self, rows) -> np.ndarray:
+        """Covariance matrix between bands of the estimated totals of ``rows``, (len(rows), B, B)."""
+        n = self.photons
+        t = self.tally[rows]
+        if n < 2:
+            return np.full(self.tally_prod[rows].shape, np.nan)
+        return n / (n - 1.0) * (self.tally_prod[rows] - t[:, :, None] * t[:, None, :] / n)
+
+    def combination(self, rows, weights):
+        """Σ_b weights[b] · tally[row, b] and its standard error (bands' covariances included), each (len(rows),)."""
+        w = np.asarray(weights, dtype=float)
+        value = self.tally[rows] @ w
+        var = np.einsum("b,rbc,c->r", w, self.covariance(rows), w)
+        return value, np.sqrt(np.maximum(var, 0.0))
 
     def sensors(self):
         """(photons, photons_std) for the transparent sensors, each (S, B)."""
@@ -252,7 +274,7 @@ class KernelScene:
 
     def trace(self, seed: int, first: int, count: int):
         """Trace one chunk; returns (tally, tally_sq, counters, nee_stats)."""
-        out = (np.zeros((self.n_rows, self.n_bands)), np.zeros((self.n_rows, self.n_bands)),
+        out = (np.zeros((self.n_rows, self.n_bands)), np.zeros((self.n_rows, self.n_bands, self.n_bands)),
                np.zeros(N_COUNTERS, np.int64), np.zeros((len(self.materials) + len(self.emit_nee), 3)))
         scratch = embree.new_scratch()
         phys = self.chamber.physics
@@ -269,24 +291,47 @@ def default_threads() -> int:
     return max(1, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1))
 
 
+def relative_sigma(tally, tally_prod, n, rows) -> np.ndarray:
+    """σ / value of the given tally rows (all bands), for rows with a value > 0; shape (k,)."""
+    t, sq = tally[rows], np.diagonal(tally_prod[rows], axis1=1, axis2=2)
+    if n < 2:
+        return np.full(t.size, np.inf)
+    std = np.sqrt(n / (n - 1.0) * np.maximum(sq - t * t / n, 0.0))
+    keep = t > 0
+    return (std[keep] / t[keep]).ravel()
+
+
 def run(kscene: KernelScene, photons: int, seed: int = 1, threads: int | None = None, progress=None,
-        stop=None) -> Result:
+        stop=None, precision: float | None = None, precision_rows=None, min_photons: int = 4 * CHUNK) -> Result:
     """Trace ``photons`` photons over ``threads`` threads.
 
     ``progress(done, total, seconds)`` is called as chunks finish;  ``stop()``
     returning True ends the run early: the result then holds the chunks finished
     so far (a prefix of the run, correctly normalised) and ``partial`` is True.
+
+    ``precision``: stop as soon as every tally in ``precision_rows`` (default:
+    the sensors, else the receivers' incident rows) that has a value has a
+    relative σ ≤ ``precision`` (checked in chunk order after ``min_photons``,
+    so the stopping point depends on the seed only); ``photons`` is then a cap.
+    ``extra["precision_reached"]`` says whether it was met.
     """
     if photons < 1:
         raise ValueError("photons must be >= 1")
     threads = threads or default_threads()
-    acc = [np.zeros((kscene.n_rows, kscene.n_bands)), np.zeros((kscene.n_rows, kscene.n_bands)),
+    acc = [np.zeros((kscene.n_rows, kscene.n_bands)), np.zeros((kscene.n_rows, kscene.n_bands, kscene.n_bands)),
            np.zeros(N_COUNTERS, np.int64), np.zeros((len(kscene.materials) + len(kscene.emit_nee), 3))]
     chunks = [(c * CHUNK, min(CHUNK, photons - c * CHUNK)) for c in range(math.ceil(photons / CHUNK))]
     done = 0
     partial = False
     start = time.perf_counter()
     window = 2 * threads
+    reached = None
+    if precision is not None:
+        if precision_rows is None:
+            precision_rows = (np.arange(kscene.n_sensors) if kscene.n_sensors else
+                              kscene.n_sensors + np.arange(kscene.n_receivers))
+        precision_rows = np.asarray(precision_rows, dtype=np.int64)
+        reached = False
     with ThreadPoolExecutor(max_workers=threads) as pool:
         pending = []
         next_chunk = 0
@@ -306,15 +351,27 @@ def run(kscene: KernelScene, photons: int, seed: int = 1, threads: int | None = 
                 if stop is not None and stop() and done < photons:
                     partial = True
                     break
+                if precision is not None and done >= min(min_photons, photons) and done < photons:
+                    rel = relative_sigma(acc[0], acc[1], done, precision_rows)
+                    if rel.size and rel.max() <= precision:
+                        reached = True
+                        break
         except KeyboardInterrupt:
             partial = True
         finally:
             for _, fut in pending:
                 fut.cancel()
     seconds = time.perf_counter() - start
-    return Result(done, acc[0], acc[1], acc[2], seconds, threads, seed, kscene.n_sensors, kscene.n_receivers,
+    result = Result(done, acc[0], acc[1], acc[2], seconds, threads, seed, kscene.n_sensors, kscene.n_receivers,
                   estimator=kscene.estimator, materials=[m.name for m in kscene.materials], nee_stats=acc[3],
                   partial=partial)
+    if precision is not None:
+        if not reached and done == photons:
+            rel = relative_sigma(acc[0], acc[1], done, precision_rows)
+            reached = bool(rel.size and rel.max() <= precision)
+        result.extra["precision_reached"] = reached
+        result.extra["precision"] = precision
+    return result
 
 
 def progress_printer(stream=sys.stderr, every: float = 2.0):

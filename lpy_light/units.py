@@ -135,3 +135,30 @@ def red_far_red(value, std, bands):
         ratio = value[:, r] / value[:, f]
         rel = np.sqrt((std[:, r] / value[:, r]) ** 2 + (std[:, f] / value[:, f]) ** 2)
     return ratio, ratio * rel
+
+
+def par_and_rfr(x, cov, scale, scale_std, bands):
+    """PAR and R:FR with σ that include the bands' covariance (all bands ride on the same photons).
+
+    ``x`` (S, B) tallies, ``cov`` (S, B, B) their covariance between bands,
+    ``scale`` (S, B) the factor turning a tally into µmol m⁻² s⁻¹ (e.g.
+    flux / (N · area)) and ``scale_std`` its σ (independent of the tallies).
+    Returns ``par, par_std, rfr, rfr_std``, each (S,) or None when the bands
+    do not allow it.
+    """
+    par = par_std = rfr = rfr_std = None
+    cols = par_columns(bands)
+    if cols is not None:
+        w = np.zeros_like(scale)
+        w[:, cols] = scale[:, cols]
+        par = (x * w).sum(axis=1)
+        var = np.einsum("sb,sbc,sc->s", w, cov, w) + ((x[:, cols] * scale_std[:, cols]) ** 2).sum(axis=1)
+        par_std = np.sqrt(np.maximum(var, 0.0))
+    r, f = band_index(bands, RED), band_index(bands, FAR_RED)
+    if r is not None and f is not None:
+        with np.errstate(divide="ignore", invalid="ignore"):
+            rfr = (x[:, r] * scale[:, r]) / (x[:, f] * scale[:, f])
+            rel2 = (cov[:, r, r] / x[:, r] ** 2 + cov[:, f, f] / x[:, f] ** 2 - 2 * cov[:, r, f] / (x[:, r] * x[:, f])
+                    + (scale_std[:, r] / scale[:, r]) ** 2 + (scale_std[:, f] / scale[:, f]) ** 2)
+            rfr_std = np.abs(rfr) * np.sqrt(np.maximum(rel2, 0.0))
+    return par, par_std, rfr, rfr_std
