@@ -202,3 +202,20 @@ def test_angers_leaf_gets_par_and_red_far_red():
     assert 20 < leaf.par < 2000 and 0 < leaf.par_std < 0.1 * leaf.par
     assert 0.3 < leaf.rfr < 5 and 0 < leaf.rfr_std < 0.2 * leaf.rfr
     assert np.all(leaf.absorbed > 0) and np.all(leaf.absorbed < leaf.ppfd * leaf.area_m2)
+
+
+def test_par_sigma_includes_the_bands_covariance(tmp_path):
+    """All bands ride on the same photons: PAR's σ must add the bands' σ linearly when they move together.
+    Across seeds, the spread of PAR matches the reported σ, which is √3 above the naive independent sum."""
+    scene = write_scene(tmp_path, BLACK_ROOM, toml_extra="bands = [[400, 500], [500, 600], [600, 700]]\n")
+    values, sigmas, naive = [], [], []
+    for seed in range(16):
+        model = LightModel(scene, organs={"Leaf": BLACK}, lamp_flux=[FLUX, FLUX, FLUX], plant_unit="mm",
+                           position=(500, 500, 0), photons=3_000, seed=seed, estimator="weighted")
+        leaf = model.intercept({1: disc_mesh(30, z=500)})[1]
+        values.append(leaf.par)
+        sigmas.append(leaf.par_std)
+        naive.append(math.sqrt((leaf.ppfd_std ** 2).sum()))
+    spread, sigma = np.std(values, ddof=1), np.mean(sigmas)
+    assert np.mean(sigmas) == pytest.approx(math.sqrt(3) * np.mean(naive), rel=1e-6)
+    assert 0.6 < spread / sigma < 1.5, (spread, sigma)
