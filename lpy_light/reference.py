@@ -1,0 +1,159 @@
+"""Reference results to compare a run with: SEC2's ``mesures*.txt``, the photon-mapping
+engine's csv, or a previous run's ``sensors.csv``.
+
+A reference gives, per sensor, a photon count for a known number of emitted
+photons (Poisson noise: σ = √count) or an expected count with its own σ.  A run
+is compared after scaling it to the reference's photon number:
+
+    z_s = (ours_s · N_ref / N_ours − ref_s) / √(σ_ours,s² (N_ref/N_ours)² + σ_ref,s²)
+
+and summarised by the share of sensors with |z| < 4, the mean relative bias
+(with its σ) and the rms relative difference.
+"""
+from __future__ import annotations
+
+import csv
+import re
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .errors import InputError
+
+#: SEC2's nominal photon count when a file does not state ``# actualNbPhotons``
+SEC2_DEFAULT_PHOTONS = 999_999_936
+
+
+@dataclass
+class Reference:
+    """Per-sensor reference counts ``photons`` (S,) and their σ (S,), for ``n_photons`` emitted."""
+
+    photons: np.ndarray
+    photons_std: np.ndarray
+    n_photons: float
+    source: str
+    centers: np.ndarray | None = None     # (S, 3) when the file gives positions
+
+
+@dataclass
+class Comparison:
+    """A run against a reference, both per sensor (S,) and summarised."""
+
+    z: np.ndarray            # (S,) signed z-scores
+    relative: np.ndarray     # (S,) ours/ref − 1
+    within_4sigma: float     # share of sensors with |z| < 4
+    bias: float              # mean of ``relative``
+    bias_std: float          # its σ (from both σ's)
+    rms: float               # rms of ``relative``
+    rms_noise: float         # rms of ``relative`` that noise alone explains
+
+    def line(self) -> str:
+        return ("within 4σ %.1f%%, bias %+.2f%% ± %.2f%%, rms %.2f%% (noise alone %.2f%%), max |z| %.1f"
+                % (100 * self.within_4sigma, 100 * self.bias, 100 * self.bias_std, 100 * self.rms,
+                   100 * self.rms_noise, np.abs(self.z).max()))
+
+
+_CENTER = re.compile(r"centre\s*\(([^)]*)\)")
+
+
+def read_sec2(path) -> Reference:
+    """SEC2's ``mesures.txt``: blocks ``disque de centre (x,y,z) ...`` then ``nb particules = N``."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8", errors="replace")
+    except OSError as exc:
+        raise InputError("cannot read reference: %s" % exc.strerror, path) from None
+    n_photons = SEC2_DEFAULT_PHOTONS
+    counts, centers = [], []
+    for number, line in enumerate(text.splitlines(), start=1):
+        if line.startswith("# actualNbPhotons"):
+            n_photons = float(line.split()[-1])
+        elif "centre" in line:
+            m = _CENTER.search(line)
+            try:
+                centers.append([float(v) for v in m.group(1).split(",")])
+            except (AttributeError, ValueError):
+                raise InputError("expected 'disque de centre (x,y,z)'", path, number) from None
+        elif line.startswith("nb particules"):
+            try:
+                counts.append(float(line.split("=")[1]))
+            except (IndexError, ValueError):
+                raise InputError("expected 'nb particules = N'", path, number) from None
+    if not counts:
+        raise InputError("no 'nb particules = N' lines: not a SEC2 result file", path)
+    counts = np.array(counts)
+    return Reference(counts, np.sqrt(counts), n_photons, str(path),
+                     np.array(centers) if len(centers) == len(counts) else None)
+
+
+def read_photon_mapping(path, n_photons: float = 1e9) -> Reference:
+    """The photon-mapping engine's ``captor_result-N-...csv`` (``id,n_photons,elevation``)."""
+    path = Path(path)
+    m = re.search(r"captor_result-(\d+)-", path.name)
+    if m:
+        n_photons = float(m.group(1))
+    rows = _read_csv(path)
+    try:
+        counts = np.array([float(r["n_photons"]) for r in rows])
+    except (KeyError, ValueError):
+        raise InputError("expected columns id,n_photons", path) from None
+    return Reference(counts, np.sqrt(counts), n_photons, str(path))
+
+
+def read_run(path, band: str | None = None) -> Reference:
+    """A previous run's ``sensors.csv`` (one band: the first, or ``band``); ``summary.json`` beside it gives N."""
+    import json
+
+    path = Path(path)
+    rows = _read_csv(path)
+    bands = [r["band"] for r in rows]
+    band = band or bands[0]
+    rows = [r for r in rows if r["band"] == band]
+    if not rows:
+        raise InputError("no rows for band %r" % band, path)
+    summary = path.with_name("summary.json")
+    try:
+        n_photons = float(json.loads(summary.read_text())["photons"])
+    except (OSError, ValueError, KeyError):
+        raise InputError("a run's sensors.csv needs its summary.json beside it (for the photon count)", summary) from None
+    counts = np.array([float(r["photons"]) for r in rows])
+    std = np.array([float(r["photons_std"]) for r in rows])
+    centers = np.array([[float(r[k]) for k in "xyz"] for r in rows]) if "x" in rows[0] else None
+    return Reference(counts, std, n_photons, str(path), centers)
+
+
+def read(path) -> Reference:
+    """Any reference: a SEC2 ``.txt``, a photon-mapping ``captor_result-*.csv`` or a run's ``sensors.csv``."""
+    path = Path(path)
+    if path.suffix == ".txt":
+        return read_sec2(path)
+    if path.name.startswith("captor_result"):
+        return read_photon_mapping(path)
+    return read_run(path)
+
+
+def _read_csv(path: Path) -> list:
+    try:
+        with open(path, newline="", encoding="utf-8") as fh:
+            return list(csv.DictReader(fh))
+    except OSError as exc:
+        raise InputError("cannot read reference: %s" % exc.strerror, path) from None
+
+
+def compare(photons, photons_std, n_photons: float, ref: Reference) -> Comparison:
+    """Compare our counts (S,) for ``n_photons`` emitted with a reference of the same S sensors."""
+    photons, photons_std = np.asarray(photons, float), np.asarray(photons_std, float)
+    if photons.shape != ref.photons.shape:
+        raise InputError("reference has %d sensors, the run %d" % (len(ref.photons), len(photons)), ref.source)
+    k = ref.n_photons / n_photons
+    ours, ours_std = photons * k, photons_std * k
+    sigma = np.hypot(ours_std, ref.photons_std)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        z = np.where(sigma > 0, (ours - ref.photons) / sigma, 0.0)
+        relative = ours / ref.photons - 1
+        rel_sigma = sigma / ref.photons
+    S = len(relative)
+    return Comparison(z=z, relative=relative, within_4sigma=float(np.mean(np.abs(z) < 4)),
+                      bias=float(relative.mean()), bias_std=float(np.sqrt((rel_sigma ** 2).sum()) / S),
+                      rms=float(np.sqrt(np.mean(relative ** 2))), rms_noise=float(np.sqrt(np.mean(rel_sigma ** 2))))
