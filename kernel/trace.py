@@ -22,6 +22,9 @@ Physics (SEC2's model, see ``docs/physics.md``):
     q_e = max_b P_e,b (the photon ends with the remaining probability), so no
     band's weight ever grows — bands as different as a 20% and an 80% wall
     stay as precise as their own analog runs;
+* where surfaces coincide (same plane, overlapping), a hit picks one of those
+  containing the point and facing the ray, uniformly at random, rather than
+  whichever Embree's float32 arithmetic happens to find (``coplanar="random"``);
 * transparent sensors record each crossing from their front side at the
   photon's current weight; receivers (solid sensors, organs) record each hit
   (incident) and the weight absorbed on them.
@@ -135,6 +138,54 @@ def _counted(skip, t, x, y, z, tgt_center, tgt_near2):
     return ex * ex + ey * ey + ez * ez < tgt_near2[t]
 
 
+@njit(cache=True)
+def _pick_coplanar(tri, px, py, pz, dx, dy, dz, cop_start, cop_list, tri_verts, tri_normal, tri_two_sided, state):
+    """One of ``tri`` and its coplanar candidates that contain p and face the ray, uniformly at random."""
+    n_in = 1
+    for a in range(cop_start[tri], cop_start[tri + 1]):
+        j = cop_list[a]
+        nx, ny, nz = tri_normal[j, 0], tri_normal[j, 1], tri_normal[j, 2]
+        if tri_two_sided[j] == 0 and dx * nx + dy * ny + dz * nz >= 0.0:
+            continue
+        inside = True
+        for i in range(3):
+            k = (i + 1) % 3
+            ax, ay, az = tri_verts[j, k, 0] - tri_verts[j, i, 0], tri_verts[j, k, 1] - tri_verts[j, i, 1], \
+                tri_verts[j, k, 2] - tri_verts[j, i, 2]
+            bx, by, bz = px - tri_verts[j, i, 0], py - tri_verts[j, i, 1], pz - tri_verts[j, i, 2]
+            cx, cy, cz = ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx
+            if cx * nx + cy * ny + cz * nz < 0.0:
+                inside = False
+                break
+        if inside:
+            n_in += 1
+    if n_in == 1:
+        return tri
+    pick = int(uniform(state) * n_in)
+    if pick == 0:
+        return tri
+    for a in range(cop_start[tri], cop_start[tri + 1]):
+        j = cop_list[a]
+        nx, ny, nz = tri_normal[j, 0], tri_normal[j, 1], tri_normal[j, 2]
+        if tri_two_sided[j] == 0 and dx * nx + dy * ny + dz * nz >= 0.0:
+            continue
+        inside = True
+        for i in range(3):
+            k = (i + 1) % 3
+            ax, ay, az = tri_verts[j, k, 0] - tri_verts[j, i, 0], tri_verts[j, k, 1] - tri_verts[j, i, 1], \
+                tri_verts[j, k, 2] - tri_verts[j, i, 2]
+            bx, by, bz = px - tri_verts[j, i, 0], py - tri_verts[j, i, 1], pz - tri_verts[j, i, 2]
+            cx, cy, cz = ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx
+            if cx * nx + cy * ny + cz * nz < 0.0:
+                inside = False
+                break
+        if inside:
+            pick -= 1
+            if pick == 0:
+                return j
+    return tri
+
+
 @njit(inline="always", cache=True)
 def _binary_search(cdf, u):
     lo, hi = 0, cdf.shape[0] - 1
@@ -197,7 +248,7 @@ def trace_chunk(scene, intersect_fn, scratch, seed, first, count,
                 max_depth, offset_rel, n_receivers, expected_absorption,
                 occluded_fn, nee_sensors, nee_receivers, tgt_kind, tgt_row, tgt_abs_row, tgt_ref, tgt_first,
                 tgt_count, tgt_area, tgt_center, tgt_near2, nee_tri, nee_cdf, sensor_target, receiver_target,
-                tri_verts, mat_nee, emit_nee, picks,
+                tri_verts, mat_nee, emit_nee, picks, cop_start, cop_list, tri_two_sided,
                 tally, tally_sq, counters, nee_stats):
     """Trace photons ``first .. first+count-1``; add what they do to the output arrays.
 
@@ -235,6 +286,11 @@ def trace_chunk(scene, intersect_fn, scratch, seed, first, count,
     mat_nee (M,), emit_nee (E,) : uint8, next events from this material's
         surfaces / this emitter element (0: its segments are counted instead).
     picks : int, targets per next event (0: all; see :func:`kernel.nee.next_event`).
+    cop_start (T+1,) int64, cop_list (K,) int32 : coplanar candidates of each triangle
+        (:func:`lpy_light.geometry.coplanar_partners`); a hit on a triangle with candidates
+        picks, uniformly at random, one of it and the candidates that contain the hit point
+        and face the ray (or are two-sided).  All-zero ``cop_start``: no such choice.
+    tri_two_sided : (T,) uint8, whether each triangle is seen from both sides.
     nee_stats : (M + E, 3) float64, shadow rays cast, unblocked, and the weight
         they deposit, per material then per emitter element.
     tally (K + M + 4, B), tally_sq (K + M + 4, B, B) : float64, expected hits and
@@ -336,17 +392,20 @@ def trace_chunk(scene, intersect_fn, scratch, seed, first, count,
                 nh = _record(f_escaped, w, hit_k, hit_w, nh, tally, tally_sq, fate0, counters)
                 break
             tri = load_u32(rh + PRIM_ID) + geom_offset[gid]
+            px, py, pz = ox + t * dx, oy + t * dy, oz + t * dz
+            if not (math.isfinite(px) and math.isfinite(py) and math.isfinite(pz)):
+                counters[C_LOST] += 1
+                nh = _record(f_lost, w, hit_k, hit_w, nh, tally, tally_sq, fate0, counters)
+                break
+            if cop_start[tri + 1] > cop_start[tri]:   # coincident surfaces: a fair choice, not float rounding
+                tri = _pick_coplanar(tri, px, py, pz, dx, dy, dz, cop_start, cop_list, tri_verts, tri_normal,
+                                     tri_two_sided, state)
             nx, ny, nz = tri_normal[tri, 0], tri_normal[tri, 1], tri_normal[tri, 2]
             if dx * nx + dy * ny + dz * nz > 0.0:      # back side of a two-sided surface
                 nx, ny, nz = -nx, -ny, -nz
                 m = tri_mat[tri, 1]
             else:
                 m = tri_mat[tri, 0]
-            px, py, pz = ox + t * dx, oy + t * dy, oz + t * dz
-            if not (math.isfinite(px) and math.isfinite(py) and math.isfinite(pz)):
-                counters[C_LOST] += 1
-                nh = _record(f_lost, w, hit_k, hit_w, nh, tally, tally_sq, fate0, counters)
-                break
             rec = tri_receiver[tri]
             # counted unless the next-event tallies cover this hit
             rec_analog = rec >= 0 and _counted(skip_receivers, receiver_target[rec] if skip_receivers else -1,

@@ -156,3 +156,59 @@ def triangle_normals(tris: np.ndarray) -> np.ndarray:
 def triangle_areas(tris: np.ndarray) -> np.ndarray:
     """Areas of (n, 3, 3) triangles, (n,)."""
     return 0.5 * np.linalg.norm(np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0]), axis=1)
+
+
+def coplanar_partners(tris: np.ndarray, source: np.ndarray, rel_tol: float = 1e-6):
+    """Triangles lying in the same plane as another surface's triangles, with overlapping bounds.
+
+    Two coincident surfaces (e.g. a cornice and a ceiling sheet modelled in one plane) make the
+    nearest hit a tie that float rounding settles; the kernel lets such a hit pick one of the
+    triangles that contain the point at random (``physics.coplanar = "random"``).  Returns CSR
+    arrays ``(start (T+1,) int64, partners (K,) int32)``: triangle i's candidates are
+    ``partners[start[i]:start[i+1]]`` -- triangles of *other* source surfaces whose plane is the
+    same (either orientation, within ``rel_tol`` of the scene's size) and whose bounding boxes
+    overlap i's.  Whether the hit point lies inside a candidate is decided at the hit.
+    """
+    tris = np.asarray(tris, float)
+    T = len(tris)
+    start = np.zeros(T + 1, np.int64)
+    if T < 2:
+        return start, np.zeros(0, np.int32)
+    source = np.asarray(source)
+    n = triangle_normals(tris)
+    # canonical orientation: first non-negligible component positive
+    lead = np.argmax(np.abs(n) > 1e-9, axis=1)
+    sign = np.where(n[np.arange(T), lead] < 0, -1.0, 1.0)
+    cn = n * sign[:, None]
+    d = np.einsum("ij,ij->i", cn, tris[:, 0])
+    tol = rel_tol * max(float(np.abs(tris).max()), 1e-30)
+    lo, hi = tris.min(axis=1), tris.max(axis=1)
+    partners = [[] for _ in range(T)]
+    valid = np.linalg.norm(n, axis=1) > 0
+    key = np.round(cn / 1e-6).astype(np.int64)
+    groups = {}
+    for i in np.flatnonzero(valid):
+        groups.setdefault(tuple(key[i]), []).append(i)
+    for members in groups.values():
+        if len(members) < 2:
+            continue
+        members = np.array(members)
+        members = members[np.argsort(d[members])]
+        dm = d[members]
+        cut = np.flatnonzero(np.diff(dm) > tol) + 1
+        for plane in np.split(members, cut):
+            if len(plane) < 2 or len(np.unique(source[plane])) < 2:
+                continue
+            # bounding boxes overlapping by more than the tolerance (in the plane's two spanning axes)
+            a_lo, a_hi = lo[plane], hi[plane]
+            over = np.all((a_lo[:, None, :] < a_hi[None, :, :] - tol) | (np.abs(cn[plane[0]]) > 1 - 1e-9)[None, None, :],
+                          axis=2) & np.all((a_lo[None, :, :] < a_hi[:, None, :] - tol)
+                                           | (np.abs(cn[plane[0]]) > 1 - 1e-9)[None, None, :], axis=2)
+            other = source[plane][:, None] != source[plane][None, :]
+            ii, jj = np.nonzero(over & other)
+            for i, j in zip(plane[ii], plane[jj]):
+                partners[i].append(j)
+    for i in range(T):
+        start[i + 1] = start[i] + len(partners[i])
+    flat = np.array([j for p in partners for j in p], np.int32)
+    return start, flat

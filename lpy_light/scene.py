@@ -16,6 +16,7 @@ Scene files (TOML) name the inputs; paths are relative to the scene file::
     one_sided = true          # a surface is seen only from its front (SEC2)
     lamps = "line"            # light cylinders: isotropic line sources (SEC2) | "lambertian"
     specular = "mirror"       # specular reflection: "mirror" (SEC2) | "phong" (lobe from roughness)
+    coplanar = "random"       # a hit where surfaces coincide picks one at random (SEC2) | "arbitrary"
     max_depth = 50            # scattering events before a photon is cut
 
 Without ``bands`` the scene has one band, ``rad``, with the ``.rad`` values.
@@ -43,7 +44,8 @@ log = logging.getLogger("lpy_light")
 UNITS = {"mm": 1e-3, "cm": 1e-2, "dm": 1e-1, "m": 1.0, "km": 1e3}
 _SCENE_KEYS = {"geometry", "sensors", "unit", "optical", "specularities", "bands", "solid_sensors", "remove",
                "physics", "spectrum", "calibration", "name", "plant_position"}
-_PHYSICS_KEYS = {"one_sided": bool, "lamps": str, "specular": str, "max_depth": int, "offset": float}
+_PHYSICS_KEYS = {"one_sided": bool, "lamps": str, "specular": str, "max_depth": int, "offset": float,
+                 "coplanar": str}
 
 
 @dataclass
@@ -53,6 +55,7 @@ class Physics:
     one_sided: bool = True
     lamps: str = "line"
     specular: str = "mirror"
+    coplanar: str = "random"     # coincident coplanar surfaces: "random" (fair choice per hit) | "arbitrary"
     max_depth: int = 50
     offset: float = 2.0 ** -17   # ray offset, relative to the hit point's coordinates
 
@@ -183,6 +186,8 @@ def chamber_from_spec(spec: dict, base: Path, name: str = "<scene>", text: str =
         raise err("physics.lamps must be 'line' or 'lambertian'", "lamps")
     if physics.specular not in ("mirror", "phong"):
         raise err("physics.specular must be 'mirror' or 'phong'", "specular")
+    if physics.coplanar not in ("random", "arbitrary"):
+        raise err("physics.coplanar must be 'random' or 'arbitrary'", "coplanar")
     if not 0 <= physics.max_depth <= 10000:
         raise err("physics.max_depth must be in 0..10000", "max_depth")
     if not 0 < physics.offset < 1e-2:

@@ -20,7 +20,7 @@ from .kernel import embree
 from .kernel.nee import build_targets
 from .kernel.trace import N_COUNTERS, trace_chunk
 from .materials import sampling_tables
-from .geometry import triangle_normals
+from .geometry import coplanar_partners, triangle_normals
 
 CHUNK = 1 << 15
 ESTIMATORS = ("weighted", "analog", "nee")
@@ -154,6 +154,10 @@ class KernelScene:
         self._chamber_two_sided = chamber.tri_two_sided[order]
         self._chamber_mat = chamber.tri_material[order].astype(np.int32)
         self._chamber_receiver = chamber.tri_receiver[order].astype(np.int32)
+        if getattr(chamber.physics, "coplanar", "random") == "random":
+            self._chamber_cop = coplanar_partners(tris[order], np.asarray(chamber.tri_source)[order])
+        else:
+            self._chamber_cop = (np.zeros(len(order) + 1, np.int64), np.zeros(0, np.int32))
         sensors = chamber.sensors
         self.scene = embree.EmbreeScene(one_sided=tris[one], two_sided=tris[two],
                                         sensors=sensors.bounding_triangles() if len(sensors) else None)
@@ -181,6 +185,10 @@ class KernelScene:
         self.tri_normal = np.ascontiguousarray(np.concatenate([self._chamber_normal, normal]))
         self.tri_mat = np.ascontiguousarray(np.concatenate([self._chamber_mat, mat]).astype(np.int32))
         self.tri_receiver = np.ascontiguousarray(np.concatenate([self._chamber_receiver, receiver]).astype(np.int32))
+        start, partners = self._chamber_cop
+        self.cop_start = np.ascontiguousarray(np.concatenate([start, np.full(len(verts), start[-1], np.int64)]))
+        self.cop_list = np.ascontiguousarray(partners if len(partners) else np.zeros(1, np.int32))
+        self.tri_two_sided = np.ascontiguousarray(self.two_sided.astype(np.uint8))
         self.mat_prob, self.mat_cum, self.mat_phong = sampling_tables(
             self.materials, self.chamber.physics.specular, "analog" if self.estimator == "analog" else "weighted")
         self.n_receivers = self.n_chamber_receivers + len(self.organs)
@@ -283,7 +291,8 @@ class KernelScene:
                     self.mat_prob, self.mat_cum, self.mat_phong, *self.sens, *self.emit,
                     phys.max_depth, phys.offset, self.n_receivers, self.estimator != "analog",
                     self.occluded, self.nee_sensors, self.nee_receivers, *self.targets, self.tri_verts,
-                    self.mat_nee, self.emit_nee, self.nee_picks, *out)
+                    self.mat_nee, self.emit_nee, self.nee_picks, self.cop_start, self.cop_list, self.tri_two_sided,
+                    *out)
         return out
 
 
