@@ -4,7 +4,8 @@ For each scene (angers, angers-onlylamps, angers-sansmakrolon, angers-sanstable)
 compares its 240 sensors with the SEC2 file that belongs to the scene (lpy_light.validation.SEC2_SCENES;
 the full chamber also with the photon-mapping engine's run).  Prints one row per run: seconds,
 photons/s, share of sensors within 4σ, mean relative bias ± σ, rms relative difference and the rms
-that Poisson noise alone explains (σ combines ours and SEC2's; ours is scaled by N_SEC2 / N_ours).
+that noise alone explains (σ combines ours and SEC2's Poisson σ; ours is scaled by N_SEC2 / N_ours), and
+the rms of our own relative σ per sensor (to compare estimators: time x σ² is their cost).
 
 ``--ablations`` runs the physics variants of lpy_light.validation.VARIANTS instead (default 1e7
 photons each) on the scenes where each one matters.
@@ -22,12 +23,15 @@ import numpy as np
 from lpy_light import simulate, validation
 
 FIELDS = ["scene", "variant", "estimator", "photons", "seconds", "photons_per_s", "reference", "within_4sigma",
-          "bias", "bias_std", "rms", "rms_noise", "max_abs_z"]
+          "bias", "bias_std", "rms", "rms_noise", "max_abs_z", "rms_ours"]
 
 
 def rows_of(run):
     """CSV rows (one per reference) of a validation.validate() result."""
     out = []
+    p, s = run["result"].sensors()
+    with np.errstate(divide="ignore", invalid="ignore"):
+        own = float(np.sqrt(np.mean((s[:, 0] / p[:, 0]) ** 2)))     # rms of our own relative σ
     for ref in ("sec2", "photon_mapping"):
         c = run[ref]
         if c is None:
@@ -38,21 +42,21 @@ def rows_of(run):
                     "reference": validation.SEC2_SCENES[run["scene"]].sec2 if ref == "sec2" else "photon-mapping",
                     "within_4sigma": round(c.within_4sigma, 4), "bias": round(c.bias, 5),
                     "bias_std": round(c.bias_std, 5), "rms": round(c.rms, 5), "rms_noise": round(c.rms_noise, 5),
-                    "max_abs_z": round(float(np.abs(c.z).max()), 2)})
+                    "max_abs_z": round(float(np.abs(c.z).max()), 2), "rms_ours": round(own, 5)})
     return out
 
 
 def print_row(r, file=sys.stdout):
-    print("%-20s %-24s %-8s %9.0e %8.1f %10.3g  %-25s %6.1f%%  %+6.2f%% ± %.2f%%  %5.2f%%  %5.2f%%  %5.1f"
+    print("%-20s %-24s %-8s %9.0e %8.1f %10.3g  %-25s %6.1f%%  %+6.2f%% ± %.2f%%  %5.2f%%  %5.2f%%  %5.1f  %5.2f%%"
           % (r["scene"], r["variant"], r["estimator"], r["photons"], r["seconds"], r["photons_per_s"],
              r["reference"], 100 * r["within_4sigma"], 100 * r["bias"], 100 * r["bias_std"], 100 * r["rms"],
-             100 * r["rms_noise"], r["max_abs_z"]), file=file, flush=True)
+             100 * r["rms_noise"], r["max_abs_z"], 100 * r["rms_ours"]), file=file, flush=True)
 
 
 def header(file=sys.stdout):
-    print("%-20s %-24s %-8s %9s %8s %10s  %-25s %7s  %-16s  %6s  %6s  %5s"
+    print("%-20s %-24s %-8s %9s %8s %10s  %-25s %7s  %-16s  %6s  %6s  %5s  %6s"
           % ("scene", "variant", "estim.", "photons", "seconds", "photons/s", "reference", "in 4σ", "bias ± σ",
-             "rms", "noise", "max|z|"), file=file, flush=True)
+             "rms", "noise", "max|z|", "σ ours"), file=file, flush=True)
 
 
 def save_sensors(directory, run):
