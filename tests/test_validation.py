@@ -96,7 +96,7 @@ def test_power_two_sided_surfaces_would_fail():
     run = validation.validate("angers", 1_000_000, estimator="nee", seed=1, threads=2,
                               kscene=validation.kernel_scene(chamber, "nee", threads=2))
     assert not _ok(run["sec2"]), run["sec2"].line()
-    assert run["sec2"].bias > 0.05                    # ~ +12 %: both sides of every thin part counted
+    assert run["sec2"].bias < -0.015                  # ~ -3 % on this chamber (docs/validation.md)
 
 
 def test_power_lamp_pattern_onlylamps():
@@ -112,8 +112,8 @@ def test_power_lamp_pattern_onlylamps():
 # the requirement at 1e8 photons (each run 1-3 min on 2 threads); see docs/validation.md for why
 # the variants without the table or without the Makrolon do not reach it
 KNOWN_OFF = {
-    "angers-sansmakrolon": "ours is 1.7 % below SEC2 with or without the cornices in between (docs/validation.md)",
-    "angers-sanstable": "which table primitives SEC2 left out is not known; removing all ten gives +2.1 %",
+    "angers-sansmakrolon": "ours is 1.8 % below SEC2 (unexplained; docs/validation.md)",
+    "angers-sanstable": "ours is 0.8 % above SEC2: which table primitives SEC2 left out is not known",
 }
 
 
