@@ -44,10 +44,11 @@ def test_photon_mapping_against_sec2(angers_dir):
 
 def test_compare_z_scores_by_hand():
     ref = reference.Reference(np.array([100.0, 400.0]), np.array([10.0, 20.0]), 1000, "hand")
-    c = reference.compare([10.0, 44.0], [1.0, 2.0], 100, ref)      # scaled x10: 100 ± 10, 440 ± 20
-    np.testing.assert_allclose(c.z, [0.0, 40 / np.hypot(20, 20)])
-    np.testing.assert_allclose(c.relative, [0.0, 0.1])
-    assert c.within_4sigma == 0.5 and c.bias == pytest.approx(0.05)
+    c = reference.compare([10.0, 60.0], [1.0, 1.0], 100, ref)      # scaled x10: 100 ± 10, 600 ± 10
+    np.testing.assert_allclose(c.z, [0.0, 200 / np.hypot(10, 20)])
+    np.testing.assert_allclose(c.relative, [0.0, 0.5])
+    assert c.within_4sigma == 0.5 and c.bias == pytest.approx(0.25)
+    assert c.rms == pytest.approx(np.sqrt(0.125))
 
 
 @pytest.mark.parametrize("name", list(validation.SEC2_SCENES))
