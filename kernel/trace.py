@@ -138,52 +138,42 @@ def _counted(skip, t, x, y, z, tgt_center, tgt_near2):
     return ex * ex + ey * ey + ez * ez < tgt_near2[t]
 
 
-@njit(cache=True)
-def _pick_coplanar(tri, px, py, pz, dx, dy, dz, cop_start, cop_list, tri_verts, tri_normal, tri_two_sided, state):
-    """One of ``tri`` and its coplanar candidates that contain p and face the ray, uniformly at random."""
+@njit(inline="always", cache=True)
+def _competes(j, px, py, pz, dx, dy, dz, cop_box, tri_verts, tri_normal, tri_two_sided):
+    """Does triangle j contain p (on its plane) and face the ray (or is it two-sided)?"""
+    if not (cop_box[j, 0, 0] <= px <= cop_box[j, 1, 0] and cop_box[j, 0, 1] <= py <= cop_box[j, 1, 1]
+            and cop_box[j, 0, 2] <= pz <= cop_box[j, 1, 2]):
+        return False
+    nx, ny, nz = tri_normal[j, 0], tri_normal[j, 1], tri_normal[j, 2]
+    if tri_two_sided[j] == 0 and dx * nx + dy * ny + dz * nz >= 0.0:
+        return False
+    for i in range(3):
+        k = (i + 1) % 3
+        ax, ay, az = (tri_verts[j, k, 0] - tri_verts[j, i, 0], tri_verts[j, k, 1] - tri_verts[j, i, 1],
+                      tri_verts[j, k, 2] - tri_verts[j, i, 2])
+        bx, by, bz = px - tri_verts[j, i, 0], py - tri_verts[j, i, 1], pz - tri_verts[j, i, 2]
+        if (ay * bz - az * by) * nx + (az * bx - ax * bz) * ny + (ax * by - ay * bx) * nz < 0.0:
+            return False
+    return True
+
+
+@njit(inline="always", cache=True)
+def _pick_coplanar(tri, px, py, pz, dx, dy, dz, cop_start, cop_list, cop_box, cop_free, tri_verts, tri_normal,
+                   tri_two_sided, state):
+    """One of ``tri`` and its coplanar candidates that contain p and face the ray, uniformly at random
+    (reservoir sampling: one random number per competing candidate, none where there is none)."""
+    if (cop_free[tri, 0, 0] < px < cop_free[tri, 1, 0] and cop_free[tri, 0, 1] < py < cop_free[tri, 1, 1]
+            and cop_free[tri, 0, 2] < pz < cop_free[tri, 1, 2]):
+        return tri                                  # where no partner reaches
+    chosen = tri
     n_in = 1
     for a in range(cop_start[tri], cop_start[tri + 1]):
         j = cop_list[a]
-        nx, ny, nz = tri_normal[j, 0], tri_normal[j, 1], tri_normal[j, 2]
-        if tri_two_sided[j] == 0 and dx * nx + dy * ny + dz * nz >= 0.0:
-            continue
-        inside = True
-        for i in range(3):
-            k = (i + 1) % 3
-            ax, ay, az = tri_verts[j, k, 0] - tri_verts[j, i, 0], tri_verts[j, k, 1] - tri_verts[j, i, 1], \
-                tri_verts[j, k, 2] - tri_verts[j, i, 2]
-            bx, by, bz = px - tri_verts[j, i, 0], py - tri_verts[j, i, 1], pz - tri_verts[j, i, 2]
-            cx, cy, cz = ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx
-            if cx * nx + cy * ny + cz * nz < 0.0:
-                inside = False
-                break
-        if inside:
+        if _competes(j, px, py, pz, dx, dy, dz, cop_box, tri_verts, tri_normal, tri_two_sided):
             n_in += 1
-    if n_in == 1:
-        return tri
-    pick = int(uniform(state) * n_in)
-    if pick == 0:
-        return tri
-    for a in range(cop_start[tri], cop_start[tri + 1]):
-        j = cop_list[a]
-        nx, ny, nz = tri_normal[j, 0], tri_normal[j, 1], tri_normal[j, 2]
-        if tri_two_sided[j] == 0 and dx * nx + dy * ny + dz * nz >= 0.0:
-            continue
-        inside = True
-        for i in range(3):
-            k = (i + 1) % 3
-            ax, ay, az = tri_verts[j, k, 0] - tri_verts[j, i, 0], tri_verts[j, k, 1] - tri_verts[j, i, 1], \
-                tri_verts[j, k, 2] - tri_verts[j, i, 2]
-            bx, by, bz = px - tri_verts[j, i, 0], py - tri_verts[j, i, 1], pz - tri_verts[j, i, 2]
-            cx, cy, cz = ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx
-            if cx * nx + cy * ny + cz * nz < 0.0:
-                inside = False
-                break
-        if inside:
-            pick -= 1
-            if pick == 0:
-                return j
-    return tri
+            if uniform(state) * n_in < 1.0:
+                chosen = j
+    return chosen
 
 
 @njit(inline="always", cache=True)
@@ -248,7 +238,7 @@ def trace_chunk(scene, intersect_fn, scratch, seed, first, count,
                 max_depth, offset_rel, n_receivers, expected_absorption,
                 occluded_fn, nee_sensors, nee_receivers, tgt_kind, tgt_row, tgt_abs_row, tgt_ref, tgt_first,
                 tgt_count, tgt_area, tgt_center, tgt_near2, nee_tri, nee_cdf, sensor_target, receiver_target,
-                tri_verts, mat_nee, emit_nee, picks, cop_start, cop_list, tri_two_sided,
+                tri_verts, mat_nee, emit_nee, picks, cop_start, cop_list, cop_box, cop_free, tri_two_sided,
                 tally, tally_sq, counters, nee_stats):
     """Trace photons ``first .. first+count-1``; add what they do to the output arrays.
 
@@ -290,6 +280,9 @@ def trace_chunk(scene, intersect_fn, scratch, seed, first, count,
         (:func:`lpy_light.geometry.coplanar_partners`); a hit on a triangle with candidates
         picks, uniformly at random, one of it and the candidates that contain the hit point
         and face the ray (or are two-sided).  All-zero ``cop_start``: no such choice.
+    cop_box : (T, 2, 3) float64, each triangle's bounding box, slightly widened (quick reject).
+    cop_free : (T, 2, 3) float64, a box where none of the triangle's candidates reaches
+        (:func:`lpy_light.geometry.partner_free_boxes`): hits inside it skip the tests.
     tri_two_sided : (T,) uint8, whether each triangle is seen from both sides.
     nee_stats : (M + E, 3) float64, shadow rays cast, unblocked, and the weight
         they deposit, per material then per emitter element.
@@ -398,8 +391,8 @@ def trace_chunk(scene, intersect_fn, scratch, seed, first, count,
                 nh = _record(f_lost, w, hit_k, hit_w, nh, tally, tally_sq, fate0, counters)
                 break
             if cop_start[tri + 1] > cop_start[tri]:   # coincident surfaces: a fair choice, not float rounding
-                tri = _pick_coplanar(tri, px, py, pz, dx, dy, dz, cop_start, cop_list, tri_verts, tri_normal,
-                                     tri_two_sided, state)
+                tri = _pick_coplanar(tri, px, py, pz, dx, dy, dz, cop_start, cop_list, cop_box, cop_free,
+                                     tri_verts, tri_normal, tri_two_sided, state)
             nx, ny, nz = tri_normal[tri, 0], tri_normal[tri, 1], tri_normal[tri, 2]
             if dx * nx + dy * ny + dz * nz > 0.0:      # back side of a two-sided surface
                 nx, ny, nz = -nx, -ny, -nz

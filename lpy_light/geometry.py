@@ -158,7 +158,7 @@ def triangle_areas(tris: np.ndarray) -> np.ndarray:
     return 0.5 * np.linalg.norm(np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0]), axis=1)
 
 
-def coplanar_partners(tris: np.ndarray, source: np.ndarray, rel_tol: float = 1e-6):
+def coplanar_partners(tris: np.ndarray, source: np.ndarray, two_sided=None, rel_tol: float = 1e-6):
     """Triangles lying in the same plane as another surface's triangles, with overlapping bounds.
 
     Two coincident surfaces (e.g. a cornice and a ceiling sheet modelled in one plane) make the
@@ -167,7 +167,9 @@ def coplanar_partners(tris: np.ndarray, source: np.ndarray, rel_tol: float = 1e-
     arrays ``(start (T+1,) int64, partners (K,) int32)``: triangle i's candidates are
     ``partners[start[i]:start[i+1]]`` -- triangles of *other* source surfaces whose plane is the
     same (either orientation, within ``rel_tol`` of the scene's size) and whose bounding boxes
-    overlap i's.  Whether the hit point lies inside a candidate is decided at the hit.
+    overlap i's.  With ``two_sided`` (T,) bool, a pair of one-sided triangles facing opposite ways
+    is left out (a ray never sees both).  Whether the hit point lies inside a candidate is decided
+    at the hit.
     """
     tris = np.asarray(tris, float)
     T = len(tris)
@@ -205,6 +207,10 @@ def coplanar_partners(tris: np.ndarray, source: np.ndarray, rel_tol: float = 1e-
                           axis=2) & np.all((a_lo[None, :, :] < a_hi[:, None, :] - tol)
                                            | (np.abs(cn[plane[0]]) > 1 - 1e-9)[None, None, :], axis=2)
             other = source[plane][:, None] != source[plane][None, :]
+            if two_sided is not None:
+                one = ~np.asarray(two_sided, bool)[plane]
+                same_way = np.einsum("ik,jk->ij", n[plane], n[plane]) > 0
+                other &= same_way | ~(one[:, None] & one[None, :])
             ii, jj = np.nonzero(over & other)
             for i, j in zip(plane[ii], plane[jj]):
                 partners[i].append(j)
@@ -212,3 +218,39 @@ def coplanar_partners(tris: np.ndarray, source: np.ndarray, rel_tol: float = 1e-
         start[i + 1] = start[i] + len(partners[i])
     flat = np.array([j for p in partners for j in p], np.int32)
     return start, flat
+
+
+def partner_free_boxes(tris: np.ndarray, start: np.ndarray, partners: np.ndarray, pad: float) -> np.ndarray:
+    """Per triangle, an axis-aligned box inside its own bounds that meets none of its coplanar
+    partners' bounds (widened by ``pad``), (T, 2, 3): a hit point inside it has no competitor, so
+    the kernel skips the per-partner tests there (e.g. the whole Makrolon ceiling but its 40 mm
+    rim).  Built by shrinking the triangle's box, partner by partner, along the axis that loses
+    the least; empty (lo > hi) where nothing is left.  Only an accelerator: any box that avoids
+    the partners is correct."""
+    tris = np.asarray(tris, float)
+    lo, hi = tris.min(axis=1) - pad, tris.max(axis=1) + pad
+    box = np.stack([lo, hi], axis=1).copy()
+    for i in range(len(tris)):
+        b_lo, b_hi = box[i, 0], box[i, 1]
+        for j in partners[start[i]:start[i + 1]]:
+            p_lo, p_hi = lo[j], hi[j]
+            if np.any(p_hi < b_lo) or np.any(p_lo > b_hi):
+                continue                                  # already apart
+            best, best_keep = None, -1.0
+            for k in range(3):
+                length = b_hi[k] - b_lo[k]
+                if length <= 2 * pad:                     # the plane's own (flat) axis: no room
+                    continue
+                if p_lo[k] > b_lo[k] and (p_lo[k] - b_lo[k]) / length > best_keep:
+                    best, best_keep = (k, 1, p_lo[k] - pad), (p_lo[k] - b_lo[k]) / length
+                if p_hi[k] < b_hi[k] and (b_hi[k] - p_hi[k]) / length > best_keep:
+                    best, best_keep = (k, 0, p_hi[k] + pad), (b_hi[k] - p_hi[k]) / length
+            if best is None:
+                b_lo[:], b_hi[:] = 1.0, -1.0              # empty
+                break
+            k, side, value = best
+            if side == 1:
+                b_hi[k] = value
+            else:
+                b_lo[k] = value
+    return box

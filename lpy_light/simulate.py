@@ -20,7 +20,7 @@ from .kernel import embree
 from .kernel.nee import build_targets
 from .kernel.trace import N_COUNTERS, trace_chunk
 from .materials import sampling_tables
-from .geometry import coplanar_partners, triangle_normals
+from .geometry import coplanar_partners, partner_free_boxes, triangle_normals
 
 CHUNK = 1 << 15
 ESTIMATORS = ("weighted", "analog", "nee")
@@ -155,9 +155,12 @@ class KernelScene:
         self._chamber_mat = chamber.tri_material[order].astype(np.int32)
         self._chamber_receiver = chamber.tri_receiver[order].astype(np.int32)
         if getattr(chamber.physics, "coplanar", "random") == "random":
-            self._chamber_cop = coplanar_partners(tris[order], np.asarray(chamber.tri_source)[order])
+            self._chamber_cop = coplanar_partners(tris[order], np.asarray(chamber.tri_source)[order],
+                                                  chamber.tri_two_sided[order])
         else:
             self._chamber_cop = (np.zeros(len(order) + 1, np.int64), np.zeros(0, np.int32))
+        self._cop_pad = 1e-5 * max(float(np.abs(tris).max()) if len(tris) else 1.0, 1e-30)
+        self._chamber_free = partner_free_boxes(tris[order], *self._chamber_cop, self._cop_pad)
         sensors = chamber.sensors
         self.scene = embree.EmbreeScene(one_sided=tris[one], two_sided=tris[two],
                                         sensors=sensors.bounding_triangles() if len(sensors) else None)
@@ -189,6 +192,12 @@ class KernelScene:
         self.cop_start = np.ascontiguousarray(np.concatenate([start, np.full(len(verts), start[-1], np.int64)]))
         self.cop_list = np.ascontiguousarray(partners if len(partners) else np.zeros(1, np.int32))
         self.tri_two_sided = np.ascontiguousarray(self.two_sided.astype(np.uint8))
+        tv = self.tri_verts
+        pad = self._cop_pad
+        self.cop_box = np.ascontiguousarray(np.stack([tv.min(axis=1) - pad, tv.max(axis=1) + pad], axis=1)
+                                            if len(tv) else np.zeros((0, 2, 3)))
+        empty = np.tile(np.array([[1.0, 1.0, 1.0], [-1.0, -1.0, -1.0]]), (len(verts), 1, 1))
+        self.cop_free = np.ascontiguousarray(np.concatenate([self._chamber_free.reshape(-1, 2, 3), empty]))
         self.mat_prob, self.mat_cum, self.mat_phong = sampling_tables(
             self.materials, self.chamber.physics.specular, "analog" if self.estimator == "analog" else "weighted")
         self.n_receivers = self.n_chamber_receivers + len(self.organs)
@@ -291,7 +300,8 @@ class KernelScene:
                     self.mat_prob, self.mat_cum, self.mat_phong, *self.sens, *self.emit,
                     phys.max_depth, phys.offset, self.n_receivers, self.estimator != "analog",
                     self.occluded, self.nee_sensors, self.nee_receivers, *self.targets, self.tri_verts,
-                    self.mat_nee, self.emit_nee, self.nee_picks, self.cop_start, self.cop_list, self.tri_two_sided,
+                    self.mat_nee, self.emit_nee, self.nee_picks, self.cop_start, self.cop_list, self.cop_box,
+                    self.cop_free, self.tri_two_sided,
                     *out)
         return out
 

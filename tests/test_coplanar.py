@@ -42,6 +42,11 @@ def test_partners_same_plane_other_surface_only():
     got = [sorted(partners[start[i]:start[i + 1]].tolist()) for i in range(len(tris))]
     assert got[0] == got[1] == [2, 3] and got[2] == got[3] == [0, 1]
     assert got[4:] == [[]] * 4
+    # one-sided triangles facing opposite ways never compete
+    start, partners = coplanar_partners(tris, source, two_sided=np.zeros(len(tris), bool))
+    assert [sorted(partners[start[i]:start[i + 1]].tolist()) for i in range(4)] == [[]] * 4
+    start, partners = coplanar_partners(tris, source, two_sided=np.ones(len(tris), bool))
+    assert sorted(partners[start[0]:start[1]].tolist()) == [2, 3]
 
 
 def test_coincident_sheets_share_hits_fairly(tmp_path):
