@@ -252,8 +252,8 @@ def organ_lights(kscene, result, organs, flux, flux_std, chamber) -> dict:
         std = np.where(x > 0, np.abs(value) * np.sqrt(rel2), sx * flux / N / per)
         return value, std
 
-    rows = R0 + np.arange(len(organs))
-    cov = result.covariance(rows) if len(organs) else np.zeros((0, len(flux), len(flux)))
+    rows = R0 + np.arange(len(organs))                 # rows of receivers_incident()
+    cov = result.covariance(result.n_sensors + rows) if len(organs) else np.zeros((0, len(flux), len(flux)))
     areas = np.array([o.area * m2 for o in organs])
     scale = flux[None, :] / N / np.maximum(areas, 1e-300)[:, None]
     scale_std = flux_std[None, :] / N / np.maximum(areas, 1e-300)[:, None]
