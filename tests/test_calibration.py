@@ -116,10 +116,16 @@ def test_malformed_measured_csv_names_file_and_line(scene, tmp_path, content, wh
     with pytest.raises(InputError) as exc:
         units.read_measured(bad, load_scene(scene))
     assert where in str(exc.value) and what in str(exc.value), str(exc.value)
+
+
+def test_malformed_measured_csv_on_the_command_line(scene, tmp_path):
+    """Checked before tracing: one line naming file:line, status 2, no results."""
+    bad = tmp_path / "measured.csv"
+    bad.write_text("x,y,z,rad\n300,300,400,12.5\n500,300,400,oops\n")
     out = tmp_path / "out"
     p = _run("run", scene, "--photons", 1000, "--out", out, "--quiet", "--calibrate", bad)
     lines = [line for line in p.stderr.splitlines() if "warning" not in line]
-    assert p.returncode == 2 and len(lines) == 1 and where in lines[0], p.stderr
+    assert p.returncode == 2 and len(lines) == 1 and "measured.csv:3:" in lines[0], p.stderr
     assert not out.exists()
 
 
