@@ -11,6 +11,8 @@ Scene files (TOML) name the inputs; paths are relative to the scene file::
     solid_sensors = "receivers.rad"                # opaque sensors with a material; optional
     remove = ["fauxPlafondInf"]                    # identifiers to leave out; optional
     plant_position = [1020, 920, 900]              # where a plant's origin goes (scene units); optional
+    calibration = "measured.csv"                   # measured sensors -> ppfd scale per band; optional
+                                                   # (or {file = "measured.csv", tolerance = 20})
 
     [physics]                                      # optional, SEC2's semantics by default
     one_sided = true          # a surface is seen only from its front (SEC2)
@@ -83,6 +85,7 @@ class Chamber:
     spectrum: object = None     # lamp spectrum (units.read_lamp_spectrum) or None
     optical: object = None      # optical.OpticalLibrary, for organ materials, or None
     plant_position: list | None = None   # where a plant's origin goes, scene units
+    calibration: tuple | None = None     # (measured csv Path, tolerance or None): units.read_measured
     source: str = ""
 
     @property
@@ -218,6 +221,19 @@ def chamber_from_spec(spec: dict, base: Path, name: str = "<scene>", text: str =
         if not (isinstance(pos, list) and len(pos) == 3 and all(isinstance(x, (int, float)) for x in pos)):
             raise err("'plant_position' must be [x, y, z] in scene units", "plant_position")
         chamber.plant_position = [float(x) for x in pos]
+    cal = spec.get("calibration")
+    if cal is not None:
+        if isinstance(cal, str):
+            cal = {"file": cal}
+        tol = cal.get("tolerance") if isinstance(cal, dict) else None
+        if (not isinstance(cal, dict) or set(cal) - {"file", "tolerance"} or not isinstance(cal.get("file"), str)
+                or not (tol is None or (isinstance(tol, (int, float)) and not isinstance(tol, bool) and tol > 0))):
+            raise err("'calibration' must be a csv path or {file = \"measured.csv\", tolerance = D} "
+                      "(D > 0, scene units)", "calibration")
+        p = base / cal["file"] if not Path(cal["file"]).is_absolute() else Path(cal["file"])
+        if not p.exists():
+            raise err("calibration file not found: %s" % p, "calibration")
+        chamber.calibration = (p, None if tol is None else float(tol))
     chamber.source = name
     return chamber
 
