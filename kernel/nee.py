@@ -92,7 +92,7 @@ def next_event(vx, vy, vz, nx, ny, nz, mode, m, stat, w, state, scene, occluded_
                tgt_kind, tgt_row, tgt_abs_row, tgt_ref, tgt_first, tgt_count, tgt_area, tgt_center, tgt_near2,
                sens_center, sens_normal, sens_radius, sens_corners,
                nee_tri, nee_cdf, tri_verts, tri_normal, tri_mat, mat_prob, contrib, out_k, out_w, counters,
-               nee_stats, picks):
+               nee_stats, picks, vscale):
     """Expected deposits of the segment leaving vertex v on every target; returns how many were written.
 
     v (scene units) with unit normal n (for Lambertian emission: the emitter's
@@ -105,9 +105,11 @@ def next_event(vx, vy, vz, nx, ny, nz, mode, m, stat, w, state, scene, occluded_
     ``picks`` > 0: only that many targets, drawn uniformly (with replacement),
     each deposit scaled by n_targets / picks — unbiased, and a vertex then
     costs ``picks`` shadow rays instead of one per target.
+    ``vscale``: the vertex's round-off scale (its triangle's and the arriving ray's magnitudes, see
+    :func:`kernel.trace.trace_chunk`); shadow rays start and stop that far (× ``offset_rel``) off surfaces.
     """
     n_bands = w.shape[0]
-    vmag = max(abs(vx), abs(vy), abs(vz))
+    vmag = max(abs(vx), abs(vy), abs(vz), vscale)
     n_out = 0
     n_tgt = tgt_kind.shape[0]
     if picks > 0 and picks < n_tgt:
@@ -190,7 +192,12 @@ def next_event(vx, vy, vz, nx, ny, nz, mode, m, stat, w, state, scene, occluded_
             if not any_light:
                 continue
             side = 1.0 if cos_v > 0.0 else -1.0
-        eps = offset_rel * (vmag + max(abs(px), abs(py), abs(pz)))
+        pmag = max(abs(px), abs(py), abs(pz))
+        if g >= 0:      # a mesh target is a surface: its triangle's round-off
+            for i in range(3):
+                for k in range(3):
+                    pmag = max(pmag, abs(tri_verts[g, i, k]))
+        eps = offset_rel * (vmag + pmag)
         tfar = dist - 2.0 * eps
         if tfar <= 0.0:
             continue

@@ -136,6 +136,16 @@ def _counted(skip, t, x, y, z, tgt_center, tgt_near2):
 
 
 @njit(inline="always", cache=True)
+def _magnitude(v):
+    """Largest |coordinate| of the three vertices v (3, 3): the scale of a triangle's float32 round-off."""
+    m = 0.0
+    for i in range(3):
+        for j in range(3):
+            m = max(m, abs(v[i, j]))
+    return m
+
+
+@njit(inline="always", cache=True)
 def _binary_search(cdf, u):
     lo, hi = 0, cdf.shape[0] - 1
     while lo < hi:
@@ -149,7 +159,9 @@ def _binary_search(cdf, u):
 
 @njit(inline="always", cache=True)
 def _emit(e, kind, data, state, offset_rel):
-    """Sample an origin and a direction on emitter element e."""
+    """Sample an origin and a direction on emitter element e.
+
+    Also returns the origin's round-off scale (see the offset note in :func:`trace_chunk`)."""
     k = kind[e]
     u1, u2, u3, u4 = uniform(state), uniform(state), uniform(state), uniform(state)
     if k == EMIT_LINE or k == EMIT_POINT:
@@ -158,7 +170,7 @@ def _emit(e, kind, data, state, offset_rel):
         oy = data[e, 0, 1] + f * (data[e, 1, 1] - data[e, 0, 1])
         oz = data[e, 0, 2] + f * (data[e, 1, 2] - data[e, 0, 2])
         dx, dy, dz = uniform_sphere(u2, u3)
-        return ox, oy, oz, dx, dy, dz, 0.0, 0.0, 1.0, V_ISOTROPIC
+        return ox, oy, oz, dx, dy, dz, 0.0, 0.0, 1.0, V_ISOTROPIC, max(abs(ox), abs(oy), abs(oz))
     if k == EMIT_TRIANGLE:
         su = math.sqrt(u1)
         b0, b1 = 1.0 - su, u2 * su
@@ -169,6 +181,7 @@ def _emit(e, kind, data, state, offset_rel):
         ax, ay, az = data[e, 1, 0] - data[e, 0, 0], data[e, 1, 1] - data[e, 0, 1], data[e, 1, 2] - data[e, 0, 2]
         bx, by, bz = data[e, 2, 0] - data[e, 0, 0], data[e, 2, 1] - data[e, 0, 1], data[e, 2, 2] - data[e, 0, 2]
         nx, ny, nz = ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx
+        scale = _magnitude(data[e])     # an emitting polygon is also a surface: its own round-off
     elif k == EMIT_CYLINDER:
         ax, ay, az = data[e, 1, 0] - data[e, 0, 0], data[e, 1, 1] - data[e, 0, 1], data[e, 1, 2] - data[e, 0, 2]
         length = math.sqrt(ax * ax + ay * ay + az * az)
@@ -177,15 +190,18 @@ def _emit(e, kind, data, state, offset_rel):
         r = data[e, 2, 0]
         ox, oy, oz = data[e, 0, 0] + u1 * ax + r * lx, data[e, 0, 1] + u1 * ay + r * ly, data[e, 0, 2] + u1 * az + r * lz
         nx, ny, nz = lx, ly, lz
+        scale = max(abs(ox), abs(oy), abs(oz))
     else:  # EMIT_SPHERE
         nx, ny, nz = uniform_sphere(u1, u2)
         r = data[e, 1, 0]
         ox, oy, oz = data[e, 0, 0] + r * nx, data[e, 0, 1] + r * ny, data[e, 0, 2] + r * nz
+        scale = max(abs(ox), abs(oy), abs(oz))
     inv = 1.0 / math.sqrt(nx * nx + ny * ny + nz * nz)
     nx, ny, nz = nx * inv, ny * inv, nz * inv
     dx, dy, dz = cosine_hemisphere(nx, ny, nz, u3, u4)
-    eps = offset_rel * max(abs(ox), abs(oy), abs(oz), 1e-30)
-    return ox + eps * nx, oy + eps * ny, oz + eps * nz, dx, dy, dz, nx, ny, nz, V_LAMBERT
+    scale += max(abs(ox), abs(oy), abs(oz), 1e-30)   # as after a hit: triangle's + origin's magnitudes
+    eps = offset_rel * scale
+    return ox + eps * nx, oy + eps * ny, oz + eps * nz, dx, dy, dz, nx, ny, nz, V_LAMBERT, scale
 
 
 @njit(nogil=True, cache=True)
@@ -223,7 +239,10 @@ def trace_chunk(scene, intersect_fn, scratch, seed, first, count,
     emit_kind (E,), emit_data (E, 3, 3), emit_cdf (E,) : emitter elements and the
         cumulative distribution of their power.
     max_depth : int, scattering events allowed before a photon is cut.
-    offset_rel : float, ray offset relative to the coordinates' magnitude.
+    offset_rel : float, ray offset relative to the round-off scale of a hit: a new ray starts
+        ``offset_rel · (max(|v_i|, |p|) + |o|)`` off the surface along its normal (v_i the hit
+        triangle's vertices, p the hit, o the ray's origin; ∞-norms), which bounds Embree's float32
+        error a few ulps deep (``docs/stability.md``).
     expected_absorption : bool, the ``weighted`` estimator (True) or ``analog``.
     occluded_fn : int, address of ``rtcOccluded1`` (next-event shadow rays).
     nee_sensors, nee_receivers : bool, whether sensors / receivers are
@@ -267,7 +286,7 @@ def trace_chunk(scene, intersect_fn, scratch, seed, first, count,
     for i in range(count):
         seed_stream(state, seed, first + i)
         e = _binary_search(emit_cdf, (i + uniform(state)) / count)
-        ox, oy, oz, dx, dy, dz, enx, eny, enz, emode = _emit(e, emit_kind, emit_data, state, offset_rel)
+        ox, oy, oz, dx, dy, dz, enx, eny, enz, emode, oscale = _emit(e, emit_kind, emit_data, state, offset_rel)
         w[:] = 1.0
         nh = 0
         depth = 0
@@ -278,7 +297,7 @@ def trace_chunk(scene, intersect_fn, scratch, seed, first, count,
                                offset_rel, tgt_kind, tgt_row, tgt_abs_row, tgt_ref, tgt_first, tgt_count, tgt_area,
                                tgt_center, tgt_near2, sens_center, sens_normal, sens_radius, sens_corners, nee_tri, nee_cdf, tri_verts,
                                tri_normal, tri_mat, mat_prob, contrib, out_k, out_w, counters, nee_stats,
-                               picks)
+                               picks, oscale)
             for a in range(n_out):
                 nh = _record(out_k[a], out_w[a], hit_k, hit_w, nh, tally, tally_sq, fate0, counters)
             after_diffuse = True
@@ -347,6 +366,11 @@ def trace_chunk(scene, intersect_fn, scratch, seed, first, count,
                 counters[C_LOST] += 1
                 nh = _record(f_lost, w, hit_k, hit_w, nh, tally, tally_sq, fate0, counters)
                 break
+            # round-off scale of this hit: Embree works in float32 on the triangle's vertices and the ray's
+            # origin, and returns t in float32, so the hit point's error is a few ulps of the largest of |v_i|
+            # and |o| (pbrt's error bounds) -- not of |p|, which is ~0 on a large triangle through the origin
+            pscale = max(_magnitude(tri_verts[tri]), abs(px), abs(py), abs(pz))
+            oscale = max(abs(ox), abs(oy), abs(oz))
             rec = tri_receiver[tri]
             # counted unless the next-event tallies cover this hit
             rec_analog = rec >= 0 and _counted(skip_receivers, receiver_target[rec] if skip_receivers else -1,
@@ -367,7 +391,7 @@ def trace_chunk(scene, intersect_fn, scratch, seed, first, count,
                                    offset_rel, tgt_kind, tgt_row, tgt_abs_row, tgt_ref, tgt_first, tgt_count,
                                    tgt_area, tgt_center, tgt_near2, sens_center, sens_normal, sens_radius, sens_corners, nee_tri, nee_cdf,
                                    tri_verts, tri_normal, tri_mat, mat_prob, contrib, out_k, out_w, counters,
-                                   nee_stats, picks)
+                                   nee_stats, picks, pscale + oscale)
                 for a in range(n_out):
                     nh = _record(out_k[a], out_w[a], hit_k, hit_w, nh, tally, tally_sq, fate0, counters)
 
@@ -413,6 +437,6 @@ def trace_chunk(scene, intersect_fn, scratch, seed, first, count,
                 side = -1.0
             inv = 1.0 / math.sqrt(dx * dx + dy * dy + dz * dz)
             dx, dy, dz = dx * inv, dy * inv, dz * inv
-            eps = side * offset_rel * (max(abs(px), abs(py), abs(pz)) + max(abs(ox), abs(oy), abs(oz)))
+            eps = side * offset_rel * (pscale + oscale)
             ox, oy, oz = px + eps * nx, py + eps * ny, pz + eps * nz
         _flush(nh, hit_k, hit_w, tally, tally_sq, fate0)

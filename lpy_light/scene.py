@@ -56,7 +56,7 @@ class Physics:
     lamps: str = "line"
     specular: str = "mirror"
     max_depth: int = 50
-    offset: float = 2.0 ** -17   # ray offset, relative to the hit point's coordinates
+    offset: float = 2.0 ** -21   # ray offset, relative to the hit's round-off scale (docs/stability.md)
 
 
 @dataclass
