@@ -98,10 +98,11 @@ def organ_from_mesh(key, mesh, material, module: str = "", scale: float = 1.0, o
         raise InputError("organ %r (%s): face index %d outside the %d vertices"
                          % (key, module or "?", faces.max() if faces.max() >= len(vertices) else faces.min(),
                             len(vertices)))
-    tris = vertices[faces] * scale + offset
-    cross = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
-    area2 = np.linalg.norm(cross, axis=1)
-    extent = np.abs(tris).max(axis=(1, 2)) if len(tris) else np.zeros(0)
+    with np.errstate(invalid="ignore", over="ignore"):     # non-finite triangles are dropped below
+        tris = vertices[faces] * scale + offset
+        cross = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
+        area2 = np.linalg.norm(cross, axis=1)
+        extent = np.abs(tris).max(axis=(1, 2)) if len(tris) else np.zeros(0)
     repeated = (faces[:, 0] == faces[:, 1]) | (faces[:, 1] == faces[:, 2]) | (faces[:, 0] == faces[:, 2])
     good = np.isfinite(tris).all(axis=(1, 2)) & ~repeated & (area2 > (1e-12 * np.maximum(extent, 1e-300)) ** 2)
     dropped = int((~good).sum())

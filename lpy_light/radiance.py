@@ -131,14 +131,14 @@ def parse_rad(text: str, name: str = "<string>") -> list:
                              "(e.g. with Radiance's xform) and pass the result" % tok, name, start)
         modifier, _ = take("a modifier", start)
         ptype, line = take("a primitive type", start)
-        ident, _ = take("an identifier", start)
-        if ptype.startswith("!") or ident.startswith("!"):
-            raise InputError("inline commands are not supported", name, line)
         if _REAL.fullmatch(ptype) or ptype.lower() in ("nan", "inf", "infinity"):
             after = (" (does the count of real arguments of the primitive at line %d match its reals?)"
                      % prims[-1].line) if prims else ""
             raise InputError("expected a primitive type (polygon, plastic, ...), got the number %r%s"
                              % (ptype, after), name, line)
+        ident, _ = take("an identifier", start)
+        if ptype.startswith("!") or ident.startswith("!"):
+            raise InputError("inline commands are not supported", name, line)
         strings = [take("a string argument", start)[0] for _ in range(count("string arguments", start))]
         ints = []
         for _ in range(count("integer arguments", start)):

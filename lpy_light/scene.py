@@ -139,6 +139,8 @@ def load_scene(path, **overrides) -> Chamber:
                 line = int(msg.split("line ")[1].split(",")[0].split(")")[0])
             except ValueError:
                 line = None
+        elif "end of document" in msg:      # e.g. an unclosed array: the problem shows at the last line
+            line = len(text.rstrip("\n").split("\n"))
         raise InputError("not valid TOML: %s" % msg.split(" (at")[0], path, line) from None
     spec.update({k: v for k, v in overrides.items() if v is not None})
     return chamber_from_spec(spec, path.parent, str(path), text)
@@ -376,8 +378,10 @@ def build_chamber(prims, sensors=None, bands=None, optical=None, specularities=N
         raise error
     emitters = emit.build()
     if len(emitters) == 0:
-        raise InputError("the scene has no light source (no light/glow surface with radiance > 0)",
-                         prims[0].path if prims else None)
+        error = InputError("the scene has no light source (no light/glow surface with radiance > 0)",
+                           prims[0].path if prims else None)
+        error.key = "geometry"
+        raise error
     total = float(np.sum(emitters.power))
     if not (math.isfinite(total) and total > 0):
         strongest = int(np.argmax(np.nan_to_num(emitters.power, nan=np.inf)))
