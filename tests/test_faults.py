@@ -4,6 +4,7 @@ from __future__ import annotations
 import csv
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -44,6 +45,10 @@ ODD = ["nan", "NaN", "-nan", "inf", "-inf", "1e999", "-1e999", "1e-999", "-0", "
        "0x10", "1,5", "²", "٣", "!xform", "#", "\n", "void", "polygon", "plastic", "light", "glow", "trans",
        "mirror", "metal", "ring", "sphere", "cylinder", "tube", "bubble", "cone", "glass", "instance", "x", "grey",
        "lamp", "sheet", "glass2", "undefined", "\x00", "\xe9", "\ufeff", "\x0c", "\x1c", "\u2028", "\udce9"]
+NUMERIC = re.compile(r"[-+]?[0-9.]+([eE][-+]?[0-9]+)?")
+number = st.one_of(st.sampled_from(["nan", "inf", "-inf", "1e999", "-0", "0", "1e-320", "4.9e-324", "1e12", "1e13",
+                                    "-1", "0.5", "2", "3", "1e300", "-1e300", "1e-300", ".", "1.", "+.5"]),
+                   st.floats(allow_nan=True, allow_infinity=True).map(repr), st.integers(-3, 30).map(str))
 token = st.one_of(st.sampled_from(ODD), st.sampled_from(VALID_TOKENS),
                   st.floats(allow_nan=True, allow_infinity=True).map(repr),
                   st.integers(-10, 10 ** 20).map(str), st.text(max_size=6))
@@ -56,9 +61,13 @@ def mutated(draw):
         return " ".join(draw(st.lists(token, max_size=60)))
     tokens = list(VALID_TOKENS)
     for _ in range(draw(st.integers(1, 4))):
-        op = draw(st.sampled_from(["insert", "delete", "replace", "swap"]))
+        op = draw(st.sampled_from(["insert", "delete", "replace", "swap", "number", "number", "number"]))
         i = draw(st.integers(0, len(tokens)))
-        if op == "insert":
+        if op == "number":        # a number for a number: the structure holds, the values are odd
+            numeric = [k for k, tok in enumerate(tokens) if NUMERIC.fullmatch(tok)]
+            if numeric:
+                tokens[draw(st.sampled_from(numeric))] = draw(number)
+        elif op == "insert":
             tokens.insert(i, draw(token))
         elif tokens and i < len(tokens):
             if op == "delete":
@@ -70,7 +79,7 @@ def mutated(draw):
                 tokens[i], tokens[j] = tokens[j], tokens[i]
     sep = draw(st.sampled_from([" ", "\n", "\t", "\r\n"]))
     text = sep.join(tokens)
-    if draw(st.booleans()):   # and sometimes cut it short
+    if draw(st.integers(0, 4)) == 0:   # and sometimes cut it short
         text = text[:draw(st.integers(0, len(text)))]
     return text
 
