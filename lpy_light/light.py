@@ -217,6 +217,8 @@ class LightModel:
             self._pruned = True
         result = simulate.run(self.kscene, n, seed=self.seed + self.step, threads=self.threads,
                               progress=self.progress)
+        if result.interrupted:
+            raise KeyboardInterrupt      # Ctrl-C ends the growth (cmd_grow keeps the steps done), not one step
         lights = organ_lights(self.kscene, result, organs, self.flux, self.flux_std, self.chamber)
         step = StepResult(self.step, lights, result.photons, time.perf_counter() - t0,
                           sum(len(o.triangles) for o in organs), 0, 0)

@@ -117,6 +117,7 @@ class Result:
     materials: list = field(default_factory=list)   # names of the fate rows' materials
     nee_stats: np.ndarray | None = None   # (M + E, 3) shadow rays cast, unblocked, weight deposited
     partial: bool = False
+    interrupted: bool = False     # stopped by KeyboardInterrupt (Ctrl-C), not by ``stop()``
     extra: dict = field(default_factory=dict)
 
     @property
@@ -290,7 +291,10 @@ class KernelScene:
             return {}
         self.mat_nee[:] = 1
         self.emit_nee[:] = 1
-        stats = run(self, photons, seed=seed, threads=threads).nee_stats
+        pilot = run(self, photons, seed=seed, threads=threads)
+        if pilot.interrupted:
+            raise KeyboardInterrupt      # Ctrl-C during the pilot: stop, do not trace on with half a pilot
+        stats = pilot.nee_stats
         M = len(self.materials)
         cast, weight = stats[:, 0], stats[:, 2]
         total_w, total_c = max(weight.sum(), 1e-300), max(cast.sum(), 1.0)
@@ -377,6 +381,11 @@ def run(kscene: KernelScene, photons: int, seed: int = 1, threads: int | None = 
     ``progress(done, total, seconds)`` is called as chunks finish;  ``stop()``
     returning True ends the run early: the result then holds the chunks finished
     so far (a prefix of the run, correctly normalised) and ``partial`` is True.
+    A KeyboardInterrupt (Ctrl-C) does the same, and also sets ``interrupted``.
+
+    Refused up front (:class:`~lpy_light.errors.ResourceError`) when the tallies
+    of ``threads`` threads would not fit in the available memory
+    (:func:`check_memory`).
 
     ``precision``: stop as soon as every tally in ``precision_rows`` (default:
     the sensors, else the receivers' incident rows) that has a value has a
@@ -402,7 +411,7 @@ def run(kscene: KernelScene, photons: int, seed: int = 1, threads: int | None = 
         return c * CHUNK, min(CHUNK, photons - c * CHUNK)
 
     done = 0
-    partial = False
+    partial = interrupted = False
     start = time.perf_counter()
     window = 2 * threads
     reached = None
@@ -440,7 +449,7 @@ def run(kscene: KernelScene, photons: int, seed: int = 1, threads: int | None = 
                         reached = True
                         break
         except KeyboardInterrupt:
-            partial = state[1] < photons
+            partial, interrupted = state[1] < photons, True
         finally:
             for _, fut in pending:
                 fut.cancel()
@@ -448,7 +457,7 @@ def run(kscene: KernelScene, photons: int, seed: int = 1, threads: int | None = 
     seconds = time.perf_counter() - start
     result = Result(done, acc[0], acc[1], acc[2], seconds, threads, seed, kscene.n_sensors, kscene.n_receivers,
                   estimator=kscene.estimator, materials=[m.name for m in kscene.materials], nee_stats=acc[3],
-                  partial=partial)
+                  partial=partial, interrupted=interrupted)
     if precision is not None:
         if not reached and done == photons:
             rel = relative_sigma(acc[0], acc[1], done, precision_rows)

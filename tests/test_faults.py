@@ -243,7 +243,7 @@ def test_keyboard_interrupt_in_run_keeps_a_whole_prefix(tmp_path):
             raise KeyboardInterrupt
 
     r = simulate.run(ks, 10 * simulate.CHUNK, seed=2, threads=2, progress=progress)
-    assert r.partial and r.photons == 3 * simulate.CHUNK
+    assert r.partial and r.interrupted and r.photons == 3 * simulate.CHUNK
     full = simulate.run(ks, 3 * simulate.CHUNK, seed=2, threads=1)
     np.testing.assert_array_equal(r.tally, full.tally)
     np.testing.assert_array_equal(r.tally_prod, full.tally_prod)
