@@ -366,3 +366,54 @@ def test_command_line_refuses_with_one_line(tmp_path, capsys, monkeypatch):
 def test_available_memory_is_known_here():
     free = simulate.available_memory()
     assert free is None or free > 0
+
+
+# ------------------------------------------------------------------------------------------
+# The other readers, fuzzed a little: sensors, optical tables, specularities, spectrum, scene TOML
+def _mutate_text(valid):
+    pieces = st.sampled_from([",", ";", "\n", "\r", " ", '"', "nan", "inf", "-", "1e999", "0", "-1", "1,5", "\x00",
+                              "\ufeff", "\xe9", "[", "]", "=", "{", "#", "'", "X", "x0", "[[", "]]", "true"])
+
+    @st.composite
+    def strategy(draw):
+        text = valid
+        for _ in range(draw(st.integers(1, 5))):
+            i = draw(st.integers(0, len(text)))
+            j = draw(st.integers(i, min(len(text), i + 8)))
+            text = text[:i] + draw(st.one_of(pieces, st.text(max_size=4))) + text[j:]
+        return text.encode("utf-8", "surrogatepass")
+    return st.one_of(strategy(), st.binary(max_size=200))
+
+
+def _readers():
+    from lpy_light.optical import read_specularities, read_table
+    from lpy_light.scene import load_scene
+    from lpy_light.sensors import read_sensors
+    from lpy_light.units import read_lamp_spectrum
+    return {
+        "sensors.csv": (read_sensors, "X,Y,Z,rayon_capteur,Xnorm,Ynorm,Znorm\n1,2,3,4,0,0,1\n5,6,7,8,0,1,0\n"),
+        "quads.csv": (read_sensors, "x0,y0,z0,x1,y1,z1,x2,y2,z2,x3,y3,z3\n0,0,0,1,0,0,1,1,0,0,1,0\n"),
+        "table.csv": (read_table, '"lambda";"moy"\n600;0,5\n601;0,25\n602;1,0\n'),
+        "spec.csv": (read_specularities, "material,specularity\nwall,0.1\nfloor,0,2\n"),
+        "spectrum.txt": (read_lamp_spectrum, "wl value\n600 0.5\n602 0.25\n"),
+        "scene.toml": (load_scene, 'geometry = "g.rad"\nunit = "mm"\nbands = [[655, 665]]\n[physics]\nmax_depth = 5\n'),
+    }
+
+
+@pytest.mark.filterwarnings("error")
+@pytest.mark.parametrize("name", list(_readers()))
+def test_fuzz_other_readers(tmp_path, name):
+    reader, valid = _readers()[name]
+    (tmp_path / "g.rad").write_text("void light l 0 0 3 1 1 1\nl polygon p 0 0 9 0 0 0 1 0 0 1 1 0\n")
+
+    @settings(max_examples=150, deadline=None, database=None, suppress_health_check=list(HealthCheck))
+    @given(_mutate_text(valid))
+    def check(data):
+        path = tmp_path / name
+        path.write_bytes(data)
+        try:
+            reader(path)
+        except InputError as exc:
+            assert exc.path is not None and "\n" not in str(exc)
+
+    check()
