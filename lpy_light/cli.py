@@ -13,6 +13,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import os
 import signal
 import sys
 import threading
@@ -35,6 +36,18 @@ def resolve_scene(name: str) -> Path:
     if name in scenes:
         return scenes[name]
     raise InputError("scene file not found (built-in scenes: %s)" % ", ".join(scenes), name)
+
+
+def check_out_dir(out):
+    """Refuse an output folder that cannot be written before any photon is traced."""
+    out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise InputError("--out must be a folder; this is a file", out)
+    parent = out
+    while not parent.exists():
+        parent = parent.parent
+    if not parent.is_dir() or not os.access(parent, os.W_OK | os.X_OK):
+        raise InputError("--out: cannot write in %s" % parent, out)
 
 
 def _count(text: str) -> int:
@@ -80,6 +93,7 @@ def cmd_run(args) -> int:
         raise InputError("--threads must be in 1..%d" % simulate.MAX_THREADS)
     if not 0 <= args.seed <= simulate.MAX_SEED:
         raise InputError("--seed must be a whole number in 0..2^63-1")
+    check_out_dir(args.out)
     if args.precision is not None and not 0 < args.precision < 1:
         raise InputError("--precision must be a relative σ in (0, 1), e.g. 0.01")
     if args.photons is None:
@@ -216,6 +230,10 @@ def main(argv=None) -> int:
     except KeyboardInterrupt:
         print("lpy-light: interrupted", file=sys.stderr)
         return 130
+    except OSError as exc:     # the machine, not the input: a full disk, a permission; one line all the same
+        print("lpy-light: error: %s%s" % (exc.filename + ": " if isinstance(exc.filename, str) else "",
+                                          exc.strerror or exc), file=sys.stderr)
+        return 1
     finally:
         if threading.current_thread() is threading.main_thread():
             for sig, handler in saved.items():

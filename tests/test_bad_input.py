@@ -463,3 +463,24 @@ def test_light_model_meshes(light_chamber):
         assert words in str(info.value)
     lights = model.intercept({1: (TRI_V * 100, TRI_F)})     # and a good one still works after the errors
     assert set(lights) == {1}
+
+
+def test_out_is_a_file(tmp_path, capsys):
+    scene = write(tmp_path / "s")
+    (tmp_path / "out").write_text("x")
+    assert cli.main(["run", str(scene), "--photons", "1000", "--out", str(tmp_path / "out"), "--quiet"]) == 2
+    lines = capsys.readouterr().err.splitlines()
+    assert len(lines) == 1 and "out: --out must be a folder" in lines[0]
+
+
+def test_results_that_cannot_be_written_give_one_line(tmp_path, capsys, monkeypatch):
+    from lpy_light import results
+    scene = write(tmp_path / "s")
+
+    def full(path, text):
+        raise OSError(28, "No space left on device", str(path))
+
+    monkeypatch.setattr(results, "atomic_write", full)
+    assert cli.main(["run", str(scene), "--photons", "1000", "--out", str(tmp_path / "out"), "--quiet"]) == 1
+    lines = capsys.readouterr().err.splitlines()
+    assert len(lines) == 1 and lines[0].endswith("sensors.csv: No space left on device")
