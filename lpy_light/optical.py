@@ -60,10 +60,11 @@ def read_table(path, clamp: bool = True) -> Spectrum:
         if number == 1 and not _is_number(parts[0]) and parts[0].lower() not in ("nan", "inf", "-inf"):
             continue  # header
         if len(parts) != 2:
-            raise InputError("expected 'wavelength;value' (2 fields separated by ';'), got %d field(s) in %r"
-                             % (len(parts), text), path, number)
+            raise InputError("expected 'wavelength;value' (2 fields separated by ';'), got %d field(s) in %r%s"
+                             % (len(parts), text, not_utf8(text)), path, number)
         if not (_is_number(parts[0]) and _is_number(parts[1])):
-            raise InputError("expected numbers 'nm;value' (decimal comma or point), got %r" % text, path, number)
+            raise InputError("expected numbers 'nm;value' (decimal comma or point), got %r%s"
+                             % (text, not_utf8(text)), path, number)
         w, v = float(parts[0].replace(",", ".")), float(parts[1].replace(",", "."))
         if not (np.isfinite(w) and np.isfinite(v)):
             raise InputError("non-finite number in %r" % text, path, number)
@@ -88,19 +89,28 @@ def _is_number(text: str) -> bool:
 
 
 def _text_lines(path, what) -> list:
-    """Lines of a text file (UTF-8, a byte-order mark allowed); bytes that are not text are an error."""
+    """Lines of a text file (UTF-8, a byte-order mark allowed); a NUL byte (a binary file) is an error.
+
+    Bytes that are not UTF-8 are kept as surrogates (a Latin-1 accent in a header or a text
+    column does no harm); where a number was expected, :func:`not_utf8` says why it is not one.
+    """
     try:
         data = Path(path).read_bytes()
     except OSError as exc:
         raise InputError("cannot read %s: %s" % (what, exc.strerror), path) from None
     if b"\x00" in data:
         raise InputError("NUL byte: this is not a text file", path, data.count(b"\n", 0, data.index(b"\x00")) + 1)
-    try:
-        text = data.decode("utf-8-sig")
-    except UnicodeDecodeError as exc:
-        raise InputError("byte 0x%02x is not UTF-8 text" % data[exc.start], path,
-                         data.count(b"\n", 0, exc.start) + 1) from None
-    return text.split("\n")
+    if data.startswith(b"\xef\xbb\xbf"):
+        data = data[3:]
+    return data.decode("utf-8", errors="surrogateescape").split("\n")
+
+
+def not_utf8(text: str) -> str:
+    """`` (byte 0x.. is not UTF-8 text)`` when ``text`` holds an undecodable byte, else ``""``."""
+    for ch in text:
+        if "\udc80" <= ch <= "\udcff":
+            return " (byte 0x%02x is not UTF-8 text)" % (ord(ch) - 0xdc00)
+    return ""
 
 
 @dataclass
@@ -148,7 +158,8 @@ def read_specularities(path) -> dict:
         except ValueError:
             if number == 1:
                 continue   # header
-            raise InputError("expected a specular fraction for %r, got %r" % (name, value), path, number) from None
+            raise InputError("expected a specular fraction for %r, got %r%s" % (name, value, not_utf8(str(value))),
+                             path, number) from None
         if not 0.0 <= s <= 1.0:
             raise InputError("specular fraction %g of %r is not in [0, 1]" % (s, name), path, number)
         if name in out:

@@ -90,7 +90,7 @@ def _error(msg, path, line=None):
 
 def read_sensors(path) -> Sensors:
     """Read a sensor csv (disc or quad format, told apart by its header)."""
-    from .optical import _text_lines
+    from .optical import _text_lines, not_utf8
 
     path = Path(path)
     lines = _text_lines(path, "sensor file")
@@ -112,8 +112,9 @@ def read_sensors(path) -> Sensors:
     elif header[:12] == _QUAD_COLUMNS:
         columns, kind = _QUAD_COLUMNS, QUAD
     else:
-        raise _error("unknown sensor header %r: expected %s (discs) or %s (quads), comma-separated"
-                     % (",".join(header), ",".join(_DISC_COLUMNS), ",".join(_QUAD_COLUMNS)), path, header_line)
+        raise _error("unknown sensor header %r: expected %s (discs) or %s (quads), comma-separated%s"
+                     % (",".join(header), ",".join(_DISC_COLUMNS), ",".join(_QUAD_COLUMNS), not_utf8(",".join(header))),
+                     path, header_line)
     values, source = [], []
     for number, row in numbered[1:]:
         cells = list(row)
@@ -125,8 +126,8 @@ def read_sensors(path) -> Sensors:
         try:
             v = [float(c) for c in cells[:len(columns)]]
         except ValueError:
-            raise _error("expected numbers in columns %s, got %r" % (",".join(columns), ",".join(row)),
-                         path, number) from None
+            raise _error("expected numbers in columns %s, got %r%s" % (",".join(columns), ",".join(row),
+                                                                       not_utf8(",".join(row))), path, number) from None
         if not np.all(np.isfinite(v)):
             raise _error("non-finite sensor value in %r" % ",".join(row), path, number)
         if np.abs(v).max() > 1e12:

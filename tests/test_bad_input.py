@@ -186,7 +186,7 @@ CASES = [
     ("optical-band-not-covered", {TABLE_PATH: table(["%d;0,5" % w for w in range(400, 500)])}, "wall.csv",
      None, "no samples in band 655-665"),
     ("optical-binary", {TABLE_PATH: b"\x89PNG\r\n\x1a\n\x00\x00"}, "wall.csv", 3, "NUL byte"),
-    ("optical-not-utf8", {TABLE_PATH: b'"lambda";"moy"\n600;0,5\xff\n'}, "wall.csv", 2, "not UTF-8"),
+    ("optical-not-utf8", {TABLE_PATH: b'"lambda";"moy"\n600;0,5\xff\n'}, "wall.csv", 2, "byte 0xff is not UTF-8"),
     ("optical-folder-is-a-file", toml_with('optical = "spec.csv"', replace="optical"), "spec.csv", None,
      "expected a folder"),
     ("optical-without-bands", {"scene.toml": TOML.replace("bands = [[655, 665]]\n", "")}, "scene.toml", 4,
@@ -233,6 +233,10 @@ CASES = [
      "not planar"),
     ("sensors-quad-out-of-order", {"sensors.csv": QUAD_HEADER + "0,0,0,1,1,0,1,0,0,0,1,0\n"}, "sensors.csv", 2,
      "not convex"),
+    ("sensors-not-utf8", {"sensors.csv": D.encode() + b"300,300,400,6\xb0,0,0,1\n"}, "sensors.csv", 2,
+     "byte 0xb0 is not UTF-8"),
+    ("spec-not-utf8", {"spec.csv": b"material,specularity\nwall,0\xb71\n"}, "spec.csv", 2,
+     "byte 0xb7 is not UTF-8"),
     ("sensors-binary", {"sensors.csv": D.encode() + b"\x00\x01\x02"}, "sensors.csv", 2, "NUL byte"),
     ("sensors-huge-field", {"sensors.csv": D + "1" * 200_000 + ",2,3,4,0,0,1\n"}, "sensors.csv", 2,
      "not a readable csv"),
@@ -484,3 +488,11 @@ def test_results_that_cannot_be_written_give_one_line(tmp_path, capsys, monkeypa
     assert cli.main(["run", str(scene), "--photons", "1000", "--out", str(tmp_path / "out"), "--quiet"]) == 1
     lines = capsys.readouterr().err.splitlines()
     assert len(lines) == 1 and lines[0].endswith("sensors.csv: No space left on device")
+
+
+def test_latin1_text_columns_are_fine(tmp_path, capsys):
+    """Only where a number is expected does a byte that is not UTF-8 matter."""
+    scene = write(tmp_path / "s", {
+        "sensors.csv": (D.rstrip("\n") + ",Orientation\n300,300,400,60,0,0,1,Vers le haut \xe9\n").encode("latin-1"),
+        TABLE_PATH: table(header='"longueur";"r\xe9flectance"').encode("latin-1")})
+    assert cli.main(["run", str(scene), "--photons", "1000", "--out", str(tmp_path / "out"), "--quiet"]) == 0
