@@ -14,6 +14,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import os
 import signal
 import sys
 import threading
@@ -36,6 +37,18 @@ def resolve_scene(name: str) -> Path:
     if name in scenes:
         return scenes[name]
     raise InputError("scene file not found (built-in scenes: %s)" % ", ".join(scenes), name)
+
+
+def check_out_dir(out):
+    """Refuse an output folder that cannot be written before any photon is traced."""
+    out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise InputError("--out must be a folder; this is a file", out)
+    parent = out
+    while not parent.exists():
+        parent = parent.parent
+    if not parent.is_dir() or not os.access(parent, os.W_OK | os.X_OK):
+        raise InputError("--out: cannot write in %s" % parent, out)
 
 
 def _count(text: str) -> int:
@@ -89,8 +102,11 @@ def cmd_run(args) -> int:
     from .results import write_run
     from .scene import load_scene
 
-    if args.threads is not None and args.threads < 1:
-        raise InputError("--threads must be >= 1")
+    if args.threads is not None and not 1 <= args.threads <= simulate.MAX_THREADS:
+        raise InputError("--threads must be in 1..%d" % simulate.MAX_THREADS)
+    if not 0 <= args.seed <= simulate.MAX_SEED:
+        raise InputError("--seed must be a whole number in 0..2^63-1")
+    check_out_dir(args.out)
     if args.precision is not None and not 0 < args.precision < 1:
         raise InputError("--precision must be a relative σ in (0, 1), e.g. 0.01")
     if args.photons is None:
@@ -104,12 +120,18 @@ def cmd_run(args) -> int:
     kscene.nee_picks = args.nee_picks
     if args.estimator == "nee":
         kscene.prune_next_events(threads=args.threads)
-    stop = threading.Event()
+    stop, tracing = threading.Event(), [True]
 
     def on_term(signum, frame):
+        # SIGTERM or a first Ctrl-C: finish the chunks in flight, write partial results, exit 130;
+        # a second Ctrl-C while tracing stops at once (simulate.run keeps the chunks summed so far).
+        # The handlers stay until main() returns, so a signal never cuts the writing of the results.
+        if signum == signal.SIGINT and stop.is_set() and tracing[0]:
+            raise KeyboardInterrupt
         stop.set()
 
-    old = signal.signal(signal.SIGTERM, on_term)
+    signal.signal(signal.SIGTERM, on_term)
+    signal.signal(signal.SIGINT, on_term)
     try:
         if not args.quiet:
             print("lpy-light: %s: %d triangles, %d sensors, %d band(s); tracing %d photons"
@@ -119,7 +141,7 @@ def cmd_run(args) -> int:
                               progress=None if args.quiet else simulate.progress_printer(),
                               stop=stop.is_set, precision=args.precision)
     finally:
-        signal.signal(signal.SIGTERM, old)
+        tracing[0] = False
     norm = None
     if chamber.spectrum is not None and chamber.bands is not None and len(chamber.sensors):
         photons, std = result.sensors()
@@ -315,6 +337,7 @@ def cmd_grow(args) -> int:
 def main(argv=None) -> int:
     logging.basicConfig(format="lpy-light: warning: %(message)s", level=logging.WARNING)
     args = _parser().parse_args(argv)
+    saved = {sig: signal.getsignal(sig) for sig in (signal.SIGTERM, signal.SIGINT)}
     try:
         if args.command == "scenes":
             for name, path in builtin_scenes().items():
@@ -330,6 +353,15 @@ def main(argv=None) -> int:
     except KeyboardInterrupt:
         print("lpy-light: interrupted", file=sys.stderr)
         return 130
+    except OSError as exc:     # the machine, not the input: a full disk, a permission; one line all the same
+        print("lpy-light: error: %s%s" % (exc.filename + ": " if isinstance(exc.filename, str) else "",
+                                          exc.strerror or exc), file=sys.stderr)
+        return 1
+    finally:
+        if threading.current_thread() is threading.main_thread():
+            for sig, handler in saved.items():
+                if handler is not None:
+                    signal.signal(sig, handler)
     return 1
 
 

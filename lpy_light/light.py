@@ -154,8 +154,12 @@ class LightModel:
             if len(spec) != 2:
                 raise InputError("organ material %r: expected a name or a (front, back) pair" % (spec,))
             return self._materials_of(spec[0])[0], self._materials_of(spec[1])[0]
-        name = spec if isinstance(spec, str) else "const(%s)" % ",".join(
-            "%s=%g" % kv for kv in sorted(dict(spec).items()))
+        try:
+            name = spec if isinstance(spec, str) else "const(%s)" % ",".join(
+                "%s=%g" % kv for kv in sorted(dict(spec).items()))
+        except (TypeError, ValueError):
+            raise InputError("organ material %r: expected a table name, a (front, back) pair or "
+                             "{'reflectance': R, 'transmittance': T}" % (spec,)) from None
         if name not in self.materials:
             self.materials[name] = plant_material(spec, name, self.chamber)
         return name, name
@@ -213,6 +217,8 @@ class LightModel:
             self._pruned = True
         result = simulate.run(self.kscene, n, seed=self.seed + self.step, threads=self.threads,
                               progress=self.progress)
+        if result.interrupted:
+            raise KeyboardInterrupt      # Ctrl-C ends the growth (cmd_grow keeps the steps done), not one step
         lights = organ_lights(self.kscene, result, organs, self.flux, self.flux_std, self.chamber)
         step = StepResult(self.step, lights, result.photons, time.perf_counter() - t0,
                           sum(len(o.triangles) for o in organs), 0, 0)

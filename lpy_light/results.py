@@ -21,6 +21,9 @@ def atomic_write(path: Path, text: str):
     path = Path(path)
     fd, tmp = tempfile.mkstemp(prefix="." + path.name + ".", dir=path.parent)
     try:
+        umask = os.umask(0o022)      # mkstemp makes 0600 files: give results the usual 0666 & ~umask
+        os.umask(umask)
+        os.chmod(tmp, 0o666 & ~umask)
         with os.fdopen(fd, "w", newline="") as fh:
             fh.write(text)
         os.replace(tmp, path)

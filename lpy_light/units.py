@@ -46,15 +46,22 @@ def read_lamp_spectrum(path) -> Spectrum:
         raise InputError("cannot read spectrum: %s" % exc.strerror, path) from None
     wl, val = [], []
     for number, line in enumerate(lines, start=1):
-        parts = line.replace(";", " ").replace(",", " ").split()
-        if not parts:
+        # fields are separated by blanks, ';' or ','; with blanks or ';', a ',' is a decimal comma
+        text = line.strip()
+        if any(c in text for c in " \t;"):
+            parts = text.replace(";", " ").replace(",", ".").split()
+        else:
+            parts = text.split(",")
+        if not text:
             continue
         try:
+            if len(parts) != 2:
+                raise ValueError
             w, v = float(parts[0]), float(parts[1])
-        except (ValueError, IndexError):
+        except ValueError:
             if number == 1:
                 continue
-            raise InputError("expected 'wavelength value', got %r" % line.strip(), path, number) from None
+            raise InputError("expected 'wavelength value' (2 numbers), got %r" % line.strip(), path, number) from None
         if not (np.isfinite(w) and np.isfinite(v)) or v < 0:
             raise InputError("expected a finite, non-negative spectral value, got %r" % line.strip(), path, number)
         if wl and w <= wl[-1]:
