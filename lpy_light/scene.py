@@ -193,11 +193,10 @@ def chamber_from_spec(spec: dict, base: Path, name: str = "<scene>", text: str =
             if not 0 < b[0] < b[1]:
                 raise err("'bands': expected 0 < start < end, got %r" % (b,), "bands")
         bands = [(float(a), float(b)) for a, b in bands]
-        order = sorted(bands)
-        for (a0, b0), (a1, b1) in zip(order, order[1:]):
-            if a1 < b0:
-                raise err("'bands': [%g, %g] and [%g, %g] overlap (bands are [start, end) intervals; give "
-                          "disjoint ones)" % (a0, b0, a1, b1), "bands")
+        # overlapping bands are fine (e.g. 400-700 beside 655-665): each band travels on its own weights
+        if len(set(bands)) < len(bands):
+            raise err("'bands': a band is given twice (%s)" % ", ".join(
+                "[%g, %g]" % b for b in sorted(set(b for b in bands if bands.count(b) > 1))), "bands")
     physics = Physics()
     table = spec.get("physics")
     if table is not None and not isinstance(table, dict):
