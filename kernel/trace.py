@@ -39,8 +39,8 @@ import math
 import numpy as np
 from numba import njit
 
-from .embree import (ARGS, CAND, CAND_CAP, CAND_COUNT, DIR, GEOM_ID, INVALID_ID, MASK, NG, ORG, PRIM_ID,
-                     RAYHIT, TFAR, TNEAR)
+from .embree import (ARGS, CAND, CAND_CAP, CAND_COUNT, DIR, GEOM_ID, HIT_U, HIT_V, INVALID_ID, MASK, NG, ORG,
+                     PRIM_ID, RAYHIT, TFAR, TNEAR)
 from .ptr import call_ptr3, load_f32, load_i64, load_u32, store_f32, store_i64, store_u32
 from .rng import seed_stream, uniform
 from .nee import V_ISOTROPIC, V_LAMBERT, V_SURFACE, next_event
@@ -365,7 +365,15 @@ def trace_chunk(scene, intersect_fn, scratch, seed, first, count,
                 m = tri_mat[tri, 1]
             else:
                 m = tri_mat[tri, 0]
-            px, py, pz = ox + t * dx, oy + t * dy, oz + t * dz
+            # the hit point from Embree's barycentrics on our float64 triangle: on its plane to float64
+            # precision.  o + t·d is not: Embree's t carries the float32 error of the triangle's plane seen
+            # from the ray's origin (~1e-5 of t on thin sliver triangles, as leaf fans have), which can put
+            # o + t·d behind the surface, farther than any sane offset.
+            bu, bv = load_f32(rh + HIT_U), load_f32(rh + HIT_V)
+            b0 = 1.0 - bu - bv
+            px = b0 * tri_verts[tri, 0, 0] + bu * tri_verts[tri, 1, 0] + bv * tri_verts[tri, 2, 0]
+            py = b0 * tri_verts[tri, 0, 1] + bu * tri_verts[tri, 1, 1] + bv * tri_verts[tri, 2, 1]
+            pz = b0 * tri_verts[tri, 0, 2] + bu * tri_verts[tri, 1, 2] + bv * tri_verts[tri, 2, 2]
             if not (math.isfinite(px) and math.isfinite(py) and math.isfinite(pz)):
                 counters[C_LOST] += 1
                 nh = _record(f_lost, w, hit_k, hit_w, nh, tally, tally_sq, fate0, counters)

@@ -95,7 +95,7 @@ def test_next_events_on_organs_match_counting(tmp_path):
     organs = {1: (disc_mesh(60, z=400), ({"reflectance": 0.1, "transmittance": 0.2}, {"reflectance": 0.3})),
               2: (disc_mesh(60, z=300, up=False), (BLACK, WHITE))}
     nee = LightModel(scene, organs={"Leaf": BLACK}, lamp_flux=FLUX, plant_unit="mm", position=(500, 500, 0),
-                     photons=60_000, estimator="nee").intercept(organs)
+                     photons=60_000, estimator="nee", nee_picks=1).intercept(organs)
     counted = LightModel(scene, organs={"Leaf": BLACK}, lamp_flux=FLUX, plant_unit="mm", position=(500, 500, 0),
                          photons=600_000, estimator="weighted").intercept(organs)
     for k in (1, 2):
