@@ -46,7 +46,7 @@ SCRATCH_BYTES = CAND + 8 * CAND_CAP + 64
 
 # offsets inside RTCRayHit
 ORG, TNEAR, DIR, TFAR, MASK, FLAGS = 0, 12, 16, 32, 36, 44
-NG, PRIM_ID, GEOM_ID, INST_ID = 48, 68, 72, 76
+NG, HIT_U, HIT_V, PRIM_ID, GEOM_ID, INST_ID = 48, 60, 64, 68, 72, 76
 
 # enums (embree4/rtcore_*.h)
 _GEOMETRY_TYPE_TRIANGLE = 0

@@ -82,8 +82,10 @@ def phong_lobe_pdf(ax, ay, az, exponent, dx, dy, dz):
 def phong_exponent(roughness: float) -> float:
     """Phong exponent of a specular lobe whose width follows Radiance's roughness α.
 
-    Matches the second moment of a Beckmann/Gaussian lobe of slope rms α:
-    e = 2/α² − 2 (so α → 0 is a mirror).  Returns ``inf`` for α ≤ 0.
+    e = 2/α² − 2 makes the rms angle between the reflected direction and the
+    mirror direction equal to α (α → 0 is a mirror).  Radiance reads α as the
+    rms *facet slope*, whose lobe is about twice as wide (e ≈ 1/(2α²) − 2);
+    see docs/physics.md.  Returns ``inf`` for α ≤ 0.
     """
     if roughness <= 0:
         return math.inf

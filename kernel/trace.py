@@ -42,8 +42,8 @@ import math
 import numpy as np
 from numba import njit
 
-from .embree import (ARGS, CAND, CAND_CAP, CAND_COUNT, DIR, GEOM_ID, INVALID_ID, MASK, NG, ORG, PRIM_ID,
-                     RAYHIT, TFAR, TNEAR)
+from .embree import (ARGS, CAND, CAND_CAP, CAND_COUNT, DIR, GEOM_ID, HIT_U, HIT_V, INVALID_ID, MASK, NG, ORG,
+                     PRIM_ID, RAYHIT, TFAR, TNEAR)
 from .ptr import call_ptr3, load_f32, load_i64, load_u32, store_f32, store_i64, store_u32
 from .rng import seed_stream, uniform
 from .nee import V_ISOTROPIC, V_LAMBERT, V_SURFACE, next_event
@@ -74,26 +74,30 @@ def _record(k, w, hit_k, hit_w, nh, tally, tally_sq, fate0, counters):
         counters[C_SCRATCH_FLUSH] += 1
         nh = 0
     hit_k[nh] = k
-    hit_w[nh, :] = w
+    for b in range(w.shape[0]):     # explicit loops: slice assignment costs ~15% at 12 bands
+        hit_w[nh, b] = w[b]
     return nh + 1
 
 
-@njit(cache=True)
+@njit(inline="always", cache=True)
 def _flush(nh, hit_k, hit_w, tally, tally_sq, fate0):
     """Add one photon's contributions: sum per tally index, then add sums and products between bands.
 
     Rows ``fate0 ..`` are fates; the last row receives the photon's total
-    deposit (closure)."""
+    deposit (closure).  ``hit_w`` has one row more than ``hit_k`` has entries:
+    that last row is this function's scratch for the total (no allocation per photon)."""
     total_row = tally.shape[0] - 1
     n_bands = hit_w.shape[1]
-    tot = np.zeros(n_bands)
+    tot = hit_w[hit_w.shape[0] - 1]
+    tot[:] = 0.0
     for a in range(nh):
         k = hit_k[a]
         if k < 0:
             continue
         for a2 in range(a + 1, nh):
             if hit_k[a2] == k:
-                hit_w[a, :] += hit_w[a2, :]
+                for b in range(n_bands):
+                    hit_w[a, b] += hit_w[a2, b]
                 hit_k[a2] = -1
         for b in range(n_bands):
             x = hit_w[a, b]
@@ -177,6 +181,16 @@ def _pick_coplanar(tri, px, py, pz, dx, dy, dz, cop_start, cop_list, cop_box, co
 
 
 @njit(inline="always", cache=True)
+def _magnitude(v):
+    """Largest |coordinate| of the three vertices v (3, 3): the scale of a triangle's float32 round-off."""
+    m = 0.0
+    for i in range(3):
+        for j in range(3):
+            m = max(m, abs(v[i, j]))
+    return m
+
+
+@njit(inline="always", cache=True)
 def _binary_search(cdf, u):
     lo, hi = 0, cdf.shape[0] - 1
     while lo < hi:
@@ -190,7 +204,9 @@ def _binary_search(cdf, u):
 
 @njit(inline="always", cache=True)
 def _emit(e, kind, data, state, offset_rel):
-    """Sample an origin and a direction on emitter element e."""
+    """Sample an origin and a direction on emitter element e.
+
+    Also returns the origin's round-off scale (see the offset note in :func:`trace_chunk`)."""
     k = kind[e]
     u1, u2, u3, u4 = uniform(state), uniform(state), uniform(state), uniform(state)
     if k == EMIT_LINE or k == EMIT_POINT:
@@ -199,7 +215,7 @@ def _emit(e, kind, data, state, offset_rel):
         oy = data[e, 0, 1] + f * (data[e, 1, 1] - data[e, 0, 1])
         oz = data[e, 0, 2] + f * (data[e, 1, 2] - data[e, 0, 2])
         dx, dy, dz = uniform_sphere(u2, u3)
-        return ox, oy, oz, dx, dy, dz, 0.0, 0.0, 1.0, V_ISOTROPIC
+        return ox, oy, oz, dx, dy, dz, 0.0, 0.0, 1.0, V_ISOTROPIC, max(abs(ox), abs(oy), abs(oz))
     if k == EMIT_TRIANGLE:
         su = math.sqrt(u1)
         b0, b1 = 1.0 - su, u2 * su
@@ -210,6 +226,7 @@ def _emit(e, kind, data, state, offset_rel):
         ax, ay, az = data[e, 1, 0] - data[e, 0, 0], data[e, 1, 1] - data[e, 0, 1], data[e, 1, 2] - data[e, 0, 2]
         bx, by, bz = data[e, 2, 0] - data[e, 0, 0], data[e, 2, 1] - data[e, 0, 1], data[e, 2, 2] - data[e, 0, 2]
         nx, ny, nz = ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx
+        scale = _magnitude(data[e])     # an emitting polygon is also a surface: its own round-off
     elif k == EMIT_CYLINDER:
         ax, ay, az = data[e, 1, 0] - data[e, 0, 0], data[e, 1, 1] - data[e, 0, 1], data[e, 1, 2] - data[e, 0, 2]
         length = math.sqrt(ax * ax + ay * ay + az * az)
@@ -218,15 +235,18 @@ def _emit(e, kind, data, state, offset_rel):
         r = data[e, 2, 0]
         ox, oy, oz = data[e, 0, 0] + u1 * ax + r * lx, data[e, 0, 1] + u1 * ay + r * ly, data[e, 0, 2] + u1 * az + r * lz
         nx, ny, nz = lx, ly, lz
+        scale = max(abs(ox), abs(oy), abs(oz))
     else:  # EMIT_SPHERE
         nx, ny, nz = uniform_sphere(u1, u2)
         r = data[e, 1, 0]
         ox, oy, oz = data[e, 0, 0] + r * nx, data[e, 0, 1] + r * ny, data[e, 0, 2] + r * nz
+        scale = max(abs(ox), abs(oy), abs(oz))
     inv = 1.0 / math.sqrt(nx * nx + ny * ny + nz * nz)
     nx, ny, nz = nx * inv, ny * inv, nz * inv
     dx, dy, dz = cosine_hemisphere(nx, ny, nz, u3, u4)
-    eps = offset_rel * max(abs(ox), abs(oy), abs(oz), 1e-30)
-    return ox + eps * nx, oy + eps * ny, oz + eps * nz, dx, dy, dz, nx, ny, nz, V_LAMBERT
+    scale += max(abs(ox), abs(oy), abs(oz), 1e-30)   # as after a hit: triangle's + origin's magnitudes
+    eps = offset_rel * scale
+    return ox + eps * nx, oy + eps * ny, oz + eps * nz, dx, dy, dz, nx, ny, nz, V_LAMBERT, scale
 
 
 @njit(nogil=True, cache=True)
@@ -264,7 +284,10 @@ def trace_chunk(scene, intersect_fn, scratch, seed, first, count,
     emit_kind (E,), emit_data (E, 3, 3), emit_cdf (E,) : emitter elements and the
         cumulative distribution of their power.
     max_depth : int, scattering events allowed before a photon is cut.
-    offset_rel : float, ray offset relative to the coordinates' magnitude.
+    offset_rel : float, ray offset relative to the round-off scale of a hit: a new ray starts
+        ``offset_rel · (max(|v_i|, |p|) + |o|)`` off the surface along its normal (v_i the hit
+        triangle's vertices, p the hit, o the ray's origin; ∞-norms), which bounds Embree's float32
+        error a few ulps deep (``docs/stability.md``).
     expected_absorption : bool, the ``weighted`` estimator (True) or ``analog``.
     occluded_fn : int, address of ``rtcOccluded1`` (next-event shadow rays).
     nee_sensors, nee_receivers : bool, whether sensors / receivers are
@@ -307,7 +330,7 @@ def trace_chunk(scene, intersect_fn, scratch, seed, first, count,
     out_k = np.empty(2 * max(n_tgt, picks) + 1, dtype=np.int64)
     out_w = np.empty((2 * max(n_tgt, picks) + 1, n_bands))
     hit_k = np.empty(HIT_CAP, dtype=np.int64)
-    hit_w = np.empty((HIT_CAP, n_bands))
+    hit_w = np.empty((HIT_CAP + 1, n_bands))     # + the flush's scratch row
     seen = np.empty(CAND_CAP, dtype=np.int64)
     rh = scratch + RAYHIT
     args = scratch + ARGS
@@ -316,7 +339,7 @@ def trace_chunk(scene, intersect_fn, scratch, seed, first, count,
     for i in range(count):
         seed_stream(state, seed, first + i)
         e = _binary_search(emit_cdf, (i + uniform(state)) / count)
-        ox, oy, oz, dx, dy, dz, enx, eny, enz, emode = _emit(e, emit_kind, emit_data, state, offset_rel)
+        ox, oy, oz, dx, dy, dz, enx, eny, enz, emode, oscale = _emit(e, emit_kind, emit_data, state, offset_rel)
         w[:] = 1.0
         nh = 0
         depth = 0
@@ -327,7 +350,7 @@ def trace_chunk(scene, intersect_fn, scratch, seed, first, count,
                                offset_rel, tgt_kind, tgt_row, tgt_abs_row, tgt_ref, tgt_first, tgt_count, tgt_area,
                                tgt_center, tgt_near2, sens_center, sens_normal, sens_radius, sens_corners, nee_tri, nee_cdf, tri_verts,
                                tri_normal, tri_mat, mat_prob, contrib, out_k, out_w, counters, nee_stats,
-                               picks)
+                               picks, oscale)
             for a in range(n_out):
                 nh = _record(out_k[a], out_w[a], hit_k, hit_w, nh, tally, tally_sq, fate0, counters)
             after_diffuse = True
@@ -385,7 +408,15 @@ def trace_chunk(scene, intersect_fn, scratch, seed, first, count,
                 nh = _record(f_escaped, w, hit_k, hit_w, nh, tally, tally_sq, fate0, counters)
                 break
             tri = load_u32(rh + PRIM_ID) + geom_offset[gid]
-            px, py, pz = ox + t * dx, oy + t * dy, oz + t * dz
+            # the hit point from Embree's barycentrics on our float64 triangle: on its plane to float64
+            # precision.  o + t·d is not: Embree's t carries the float32 error of the triangle's plane seen
+            # from the ray's origin (~1e-5 of t on thin sliver triangles, as leaf fans have), which can put
+            # o + t·d behind the surface, farther than any sane offset.
+            bu, bv = load_f32(rh + HIT_U), load_f32(rh + HIT_V)
+            b0 = 1.0 - bu - bv
+            px = b0 * tri_verts[tri, 0, 0] + bu * tri_verts[tri, 1, 0] + bv * tri_verts[tri, 2, 0]
+            py = b0 * tri_verts[tri, 0, 1] + bu * tri_verts[tri, 1, 1] + bv * tri_verts[tri, 2, 1]
+            pz = b0 * tri_verts[tri, 0, 2] + bu * tri_verts[tri, 1, 2] + bv * tri_verts[tri, 2, 2]
             if not (math.isfinite(px) and math.isfinite(py) and math.isfinite(pz)):
                 counters[C_LOST] += 1
                 nh = _record(f_lost, w, hit_k, hit_w, nh, tally, tally_sq, fate0, counters)
@@ -399,6 +430,11 @@ def trace_chunk(scene, intersect_fn, scratch, seed, first, count,
                 m = tri_mat[tri, 1]
             else:
                 m = tri_mat[tri, 0]
+            # round-off scale of this hit: Embree works in float32 on the triangle's vertices and the ray's
+            # origin, and returns t in float32, so the hit point's error is a few ulps of the largest of |v_i|
+            # and |o| (pbrt's error bounds) -- not of |p|, which is ~0 on a large triangle through the origin
+            pscale = max(_magnitude(tri_verts[tri]), abs(px), abs(py), abs(pz))
+            oscale = max(abs(ox), abs(oy), abs(oz))
             rec = tri_receiver[tri]
             # counted unless the next-event tallies cover this hit
             rec_analog = rec >= 0 and _counted(skip_receivers, receiver_target[rec] if skip_receivers else -1,
@@ -419,7 +455,7 @@ def trace_chunk(scene, intersect_fn, scratch, seed, first, count,
                                    offset_rel, tgt_kind, tgt_row, tgt_abs_row, tgt_ref, tgt_first, tgt_count,
                                    tgt_area, tgt_center, tgt_near2, sens_center, sens_normal, sens_radius, sens_corners, nee_tri, nee_cdf,
                                    tri_verts, tri_normal, tri_mat, mat_prob, contrib, out_k, out_w, counters,
-                                   nee_stats, picks)
+                                   nee_stats, picks, pscale + oscale)
                 for a in range(n_out):
                     nh = _record(out_k[a], out_w[a], hit_k, hit_w, nh, tally, tally_sq, fate0, counters)
 
@@ -465,6 +501,6 @@ def trace_chunk(scene, intersect_fn, scratch, seed, first, count,
                 side = -1.0
             inv = 1.0 / math.sqrt(dx * dx + dy * dy + dz * dz)
             dx, dy, dz = dx * inv, dy * inv, dz * inv
-            eps = side * offset_rel * (max(abs(px), abs(py), abs(pz)) + max(abs(ox), abs(oy), abs(oz)))
+            eps = side * offset_rel * (pscale + oscale)
             ox, oy, oz = px + eps * nx, py + eps * ny, pz + eps * nz
         _flush(nh, hit_k, hit_w, tally, tally_sq, fate0)

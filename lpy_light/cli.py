@@ -1,6 +1,7 @@
 """The ``lpy-light`` command line.
 
     lpy-light run SCENE.toml [--photons N] [--seed S] [--threads T] --out DIR
+              [--calibrate MEASURED.csv] [--plot] [--reference REF]
     lpy-light grow MODEL.lpy --steps N [--photons P] --out DIR   # needs L-Py (conda)
     lpy-light scenes                       # list the built-in scenes
 
@@ -13,6 +14,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import os
 import signal
 import sys
 import threading
@@ -35,6 +37,18 @@ def resolve_scene(name: str) -> Path:
     if name in scenes:
         return scenes[name]
     raise InputError("scene file not found (built-in scenes: %s)" % ", ".join(scenes), name)
+
+
+def check_out_dir(out):
+    """Refuse an output folder that cannot be written before any photon is traced."""
+    out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise InputError("--out must be a folder; this is a file", out)
+    parent = out
+    while not parent.exists():
+        parent = parent.parent
+    if not parent.is_dir() or not os.access(parent, os.W_OK | os.X_OK):
+        raise InputError("--out: cannot write in %s" % parent, out)
 
 
 def _count(text: str) -> int:
@@ -66,6 +80,18 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--quiet", action="store_true", help="no progress lines")
     r.add_argument("--nee-picks", type=int, default=1, metavar="K",
                    help="with --estimator nee: targets per next event, drawn at random (default 1; 0 = all)")
+    r.add_argument("--calibrate", metavar="FILE", default=None,
+                   help="csv of measured sensors (x,y,z or sensor, and one column per band, µmol m-2 s-1): "
+                        "ppfd scaled per band by least squares on them (overrides the scene's 'calibration')")
+    r.add_argument("--calibrate-tolerance", type=float, default=None, metavar="D",
+                   help="how far (scene units) a measured point may lie from its sensor (default: the sensor's radius)")
+    r.add_argument("--plot", action="store_true",
+                   help="write PNG maps of each sensor plane (needs matplotlib: pip install 'lpy-light[plot]')")
+    r.add_argument("--reference", metavar="FILE", default=None,
+                   help="compare with a reference (SEC2 mesures .txt, photon-mapping captor_result csv or a run's "
+                        "sensors.csv): prints the comparison, and with --plot maps the difference in σ units")
+    r.add_argument("--reference-band", metavar="LABEL", default=None,
+                   help="band compared with the reference (default 655-665 when the scene has it, else the first)")
     sub.add_parser("scenes", help="list the built-in scenes")
     _grow_parser(sub)
     return p
@@ -76,26 +102,36 @@ def cmd_run(args) -> int:
     from .results import write_run
     from .scene import load_scene
 
-    if args.threads is not None and args.threads < 1:
-        raise InputError("--threads must be >= 1")
+    if args.threads is not None and not 1 <= args.threads <= simulate.MAX_THREADS:
+        raise InputError("--threads must be in 1..%d" % simulate.MAX_THREADS)
+    if not 0 <= args.seed <= simulate.MAX_SEED:
+        raise InputError("--seed must be a whole number in 0..2^63-1")
+    check_out_dir(args.out)
     if args.precision is not None and not 0 < args.precision < 1:
         raise InputError("--precision must be a relative σ in (0, 1), e.g. 0.01")
     if args.photons is None:
         args.photons = 10_000_000_000 if args.precision is not None else 1_000_000
     path = resolve_scene(args.scene)
     chamber = load_scene(path)
+    measured, ref, ref_band = _before_run(args, chamber)
     kscene = simulate.KernelScene(chamber, estimator=args.estimator)
     if args.nee_picks < 0:
         raise InputError("--nee-picks must be >= 0")
     kscene.nee_picks = args.nee_picks
     if args.estimator == "nee":
         kscene.prune_next_events(threads=args.threads)
-    stop = threading.Event()
+    stop, tracing = threading.Event(), [True]
 
     def on_term(signum, frame):
+        # SIGTERM or a first Ctrl-C: finish the chunks in flight, write partial results, exit 130;
+        # a second Ctrl-C while tracing stops at once (simulate.run keeps the chunks summed so far).
+        # The handlers stay until main() returns, so a signal never cuts the writing of the results.
+        if signum == signal.SIGINT and stop.is_set() and tracing[0]:
+            raise KeyboardInterrupt
         stop.set()
 
-    old = signal.signal(signal.SIGTERM, on_term)
+    signal.signal(signal.SIGTERM, on_term)
+    signal.signal(signal.SIGINT, on_term)
     try:
         if not args.quiet:
             print("lpy-light: %s: %d triangles, %d sensors, %d band(s); tracing %d photons"
@@ -105,18 +141,127 @@ def cmd_run(args) -> int:
                               progress=None if args.quiet else simulate.progress_printer(),
                               stop=stop.is_set, precision=args.precision)
     finally:
-        signal.signal(signal.SIGTERM, old)
+        tracing[0] = False
     norm = None
     if chamber.spectrum is not None and chamber.bands is not None and len(chamber.sensors):
         photons, std = result.sensors()
         norm = units.from_spectrum(photons, std, chamber.sensors.area * chamber.metres_per_unit ** 2,
                                    chamber.spectrum, chamber.bands)
-    summary = write_run(args.out, chamber, result, norm)
+    extra, calibration, comparison = _after_run(args, chamber, result, norm, measured, ref, ref_band)
+    if calibration is not None:
+        norm = calibration.norm
+    summary = write_run(args.out, chamber, result, norm, extra)
+    if calibration is not None:
+        from .results import atomic_write, csv_text
+        atomic_write(Path(args.out) / "calibration.csv", csv_text(calibration.rows))
+    if comparison is not None:
+        print("lpy-light: %s vs %s (band %s): %s" % (path.name, ref.source, ref_band, comparison.line()))
+    if args.plot:
+        _plots(args, chamber, result, norm, comparison, ref, ref_band)
     if not args.quiet:
         print("lpy-light: %d photons in %.2f s (%.3g photons/s)%s; results in %s"
               % (result.photons, result.seconds, summary["photons_per_second"] or 0,
                  " — PARTIAL (interrupted)" if result.partial else "", args.out), file=sys.stderr)
     return 130 if result.partial else 0
+
+
+def _before_run(args, chamber):
+    """Read and check what the run's results will be compared or calibrated with, before tracing."""
+    from . import reference, units
+
+    if args.plot:
+        from .plots import require_matplotlib
+        require_matplotlib()
+    measured = None
+    if args.calibrate is not None:
+        if not Path(args.calibrate).is_file():
+            raise InputError("calibration file not found", args.calibrate)
+        chamber.calibration = (Path(args.calibrate), None)
+    if args.calibrate_tolerance is not None:
+        if not args.calibrate_tolerance > 0:
+            raise InputError("--calibrate-tolerance must be > 0 (scene units)")
+        if chamber.calibration is None:
+            raise InputError("--calibrate-tolerance needs --calibrate FILE or a scene 'calibration'")
+        chamber.calibration = (chamber.calibration[0], args.calibrate_tolerance)
+    if chamber.calibration is not None:
+        measured = units.read_measured(chamber.calibration[0], chamber, chamber.calibration[1])
+    ref = band = None
+    if args.reference is not None:
+        labels = chamber.band_labels
+        band = args.reference_band or ("655-665" if "655-665" in labels else labels[0])
+        if band not in labels:
+            raise InputError("--reference-band %s is not a band of the scene (%s)" % (band, ", ".join(labels)))
+        rpath = Path(args.reference)
+        if not rpath.is_file():
+            raise InputError("reference file not found", rpath)
+        if rpath.suffix == ".csv" and not rpath.name.startswith("captor_result"):
+            ref = reference.read_run(rpath, band=band)
+        else:
+            ref = reference.read(rpath)
+        if len(ref.photons) != len(chamber.sensors):
+            raise InputError("reference has %d sensors, the scene %d" % (len(ref.photons), len(chamber.sensors)),
+                             ref.source)
+    return measured, ref, band
+
+
+def _after_run(args, chamber, result, norm, measured, ref, ref_band):
+    """Calibration and comparison of a finished run: (summary extras, Calibration or None, Comparison or None)."""
+    from . import reference, units
+
+    extra = {}
+    calibration = comparison = None
+    if measured is not None:
+        photons, std = result.sensors()
+        calibration = units.calibrate(measured, photons, std, chamber.sensors.area * chamber.metres_per_unit ** 2,
+                                      chamber.band_labels, fallback=norm)
+        extra["calibration"] = calibration.summary
+        if norm is not None:
+            extra["spectrum_normalisation"] = {"how": norm.how, "assumption": norm.assumption,
+                                               "scale": norm.scale.tolist(), "scale_std": norm.scale_std.tolist()}
+    if ref is not None:
+        photons, std = result.sensors()
+        b = chamber.band_labels.index(ref_band)
+        comparison = reference.compare(photons[:, b], std[:, b], result.photons, ref)
+        extra["reference"] = {"file": ref.source, "band": ref_band, "n_photons": ref.n_photons,
+                              "within_4sigma": comparison.within_4sigma, "bias": comparison.bias,
+                              "bias_std": comparison.bias_std, "rms": comparison.rms, "rms_noise": comparison.rms_noise,
+                              "max_abs_z": float(abs(comparison.z).max()), "line": comparison.line()}
+    return extra, calibration, comparison
+
+
+def _plots(args, chamber, result, norm, comparison, ref, ref_band):
+    """--plot: maps of every sensor plane (ppfd when known, else photons), and of the difference to --reference."""
+    from . import plots, units
+    from .results import derived_table
+
+    if not len(chamber.sensors):
+        logging.getLogger("lpy_light").warning("--plot: the scene has no sensors to map")
+        return []
+    photons, std = result.sensors()
+    area_m2 = chamber.sensors.area * chamber.metres_per_unit ** 2
+    value = par = rfr = None
+    if norm is not None:
+        value, _ = units.ppfd(photons, std, area_m2, norm)
+        derived = derived_table(chamber, result, norm)
+        if derived and "par" in derived[0]:
+            par = [row["par"] for row in derived]
+        if derived and "r_fr" in derived[0]:
+            rfr = [row["r_fr"] for row in derived]
+    import numpy as np
+    panels = plots.run_panels(chamber.band_labels, photons, value, None if par is None else np.array(par),
+                              None if rfr is None else np.array(rfr))
+    name = Path(chamber.source).stem
+    paths = plots.sensor_maps(args.out, chamber.sensors.center, chamber.sensors.normal, panels, prefix="map",
+                              title="%s, %d photons" % (name, result.photons), unit=chamber.unit)
+    if comparison is not None:
+        paths += plots.sensor_maps(args.out, chamber.sensors.center, chamber.sensors.normal,
+                                   [("%s vs %s" % (ref_band, Path(ref.source).name), comparison.z,
+                                     "(ours − reference) / σ")],
+                                   prefix="diff", title="%s: %s" % (name, comparison.line()), unit=chamber.unit,
+                                   diverging=True)
+    if not args.quiet:
+        print("lpy-light: pictures: %s" % ", ".join(str(p) for p in paths), file=sys.stderr)
+    return paths
 
 
 def _grow_parser(sub):
@@ -192,6 +337,7 @@ def cmd_grow(args) -> int:
 def main(argv=None) -> int:
     logging.basicConfig(format="lpy-light: warning: %(message)s", level=logging.WARNING)
     args = _parser().parse_args(argv)
+    saved = {sig: signal.getsignal(sig) for sig in (signal.SIGTERM, signal.SIGINT)}
     try:
         if args.command == "scenes":
             for name, path in builtin_scenes().items():
@@ -207,6 +353,15 @@ def main(argv=None) -> int:
     except KeyboardInterrupt:
         print("lpy-light: interrupted", file=sys.stderr)
         return 130
+    except OSError as exc:     # the machine, not the input: a full disk, a permission; one line all the same
+        print("lpy-light: error: %s%s" % (exc.filename + ": " if isinstance(exc.filename, str) else "",
+                                          exc.strerror or exc), file=sys.stderr)
+        return 1
+    finally:
+        if threading.current_thread() is threading.main_thread():
+            for sig, handler in saved.items():
+                if handler is not None:
+                    signal.signal(sig, handler)
     return 1
 
 

@@ -64,7 +64,7 @@ class EmitterBuilder:
     def triangles(self, tris, radiance, name):
         for tri, area in zip(tris, triangle_areas(tris)):
             if area > 0:
-                self._add(EMIT_TRIANGLE, tri, math.pi * radiance * area, name)
+                self._add(EMIT_TRIANGLE, tri, math.pi * radiance * float(area), name)   # inf, not a warning
 
     def cylinder(self, p0, p1, radius, radiance, name):
         area = 2 * math.pi * radius * float(np.linalg.norm(np.subtract(p1, p0)))

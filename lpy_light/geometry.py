@@ -158,7 +158,7 @@ def triangle_areas(tris: np.ndarray) -> np.ndarray:
     return 0.5 * np.linalg.norm(np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0]), axis=1)
 
 
-def coplanar_partners(tris: np.ndarray, source: np.ndarray, two_sided=None, rel_tol: float = 1e-6):
+def coplanar_partners(tris: np.ndarray, source: np.ndarray, two_sided=None, rel_tol: float = 1e-9):
     """Triangles lying in the same plane as another surface's triangles, with overlapping bounds.
 
     Two coincident surfaces (e.g. a cornice and a ceiling sheet modelled in one plane) make the
@@ -166,7 +166,8 @@ def coplanar_partners(tris: np.ndarray, source: np.ndarray, two_sided=None, rel_
     triangles that contain the point at random (``physics.coplanar = "random"``).  Returns CSR
     arrays ``(start (T+1,) int64, partners (K,) int32)``: triangle i's candidates are
     ``partners[start[i]:start[i+1]]`` -- triangles of *other* source surfaces whose plane is the
-    same (either orientation, within ``rel_tol`` of the scene's size) and whose bounding boxes
+    same (either orientation, within ``rel_tol`` of the coordinates' magnitude: coincident as written,
+    not merely close) and whose bounding boxes
     overlap i's.  With ``two_sided`` (T,) bool, a pair of one-sided triangles facing opposite ways
     is left out (a ray never sees both).  Whether the hit point lies inside a candidate is decided
     at the hit.

@@ -6,8 +6,9 @@ Layout (SEC2's)::
     optical/<group>/TransmittancesMean/<material>.csv
 
 Each table has a header line (``"lambda";"moy"``) then ``nm;value`` rows with a
-decimal comma, every 1 nm.  Values are fractions 0-1; slightly negative values
-are measurement noise and are clamped at 0.  A band's value is the mean of the
+decimal comma, every 1 nm.  Values are fractions 0-1; values slightly outside
+(down to -0.2, up to 1.2) are measurement noise and are clamped to [0, 1];
+anything further out (a table in percent, say) is an error.  A band's value is the mean of the
 table's 1-nm samples λ with ``start <= λ < end``.
 
 Specular fractions ``s`` (wavelength-independent) come from SEC2's
@@ -49,29 +50,28 @@ class Spectrum:
 def read_table(path, clamp: bool = True) -> Spectrum:
     """Read one SEC2 optical table (decimal comma, ``;`` separated, one header line)."""
     path = Path(path)
-    try:
-        lines = path.read_text(encoding="utf-8", errors="replace").splitlines()
-    except OSError as exc:
-        raise InputError("cannot read optical table: %s" % exc.strerror, path) from None
+    lines = _text_lines(path, "optical table")
     wl, val = [], []
     for number, line in enumerate(lines, start=1):
         text = line.strip()
         if not text:
             continue
         parts = [p.strip().strip('"') for p in text.split(";")]
-        if number == 1 and not _is_number(parts[0]):
+        if number == 1 and not _is_number(parts[0]) and parts[0].lower() not in ("nan", "inf", "-inf"):
             continue  # header
         if len(parts) != 2:
-            raise InputError("expected 'wavelength;value' (2 fields separated by ';'), got %d field(s)"
-                             % len(parts), path, number)
-        try:
-            w, v = float(parts[0].replace(",", ".")), float(parts[1].replace(",", "."))
-        except ValueError:
-            raise InputError("expected numbers 'nm;value' (decimal comma), got %r" % text, path, number) from None
+            raise InputError("expected 'wavelength;value' (2 fields separated by ';'), got %d field(s) in %r%s"
+                             % (len(parts), text, not_utf8(text)), path, number)
+        if not (_is_number(parts[0]) and _is_number(parts[1])):
+            raise InputError("expected numbers 'nm;value' (decimal comma or point), got %r%s"
+                             % (text, not_utf8(text)), path, number)
+        w, v = float(parts[0].replace(",", ".")), float(parts[1].replace(",", "."))
         if not (np.isfinite(w) and np.isfinite(v)):
             raise InputError("non-finite number in %r" % text, path, number)
-        if v > 1.5 or v < -0.5:
-            raise InputError("value %g is not a fraction 0-1" % v, path, number)
+        if not 0 < w < 1e5:
+            raise InputError("wavelength %g nm is not a wavelength (expected nm, > 0)" % w, path, number)
+        if v > 1.2 or v < -0.2:
+            raise InputError("value %g is not a fraction 0-1 (a table in percent? divide by 100)" % v, path, number)
         if wl and w <= wl[-1]:
             raise InputError("wavelengths must increase (%g after %g)" % (w, wl[-1]), path, number)
         wl.append(w)
@@ -85,7 +85,32 @@ def read_table(path, clamp: bool = True) -> Spectrum:
 
 
 def _is_number(text: str) -> bool:
-    return bool(re.fullmatch(r"[-+]?\d+([.,]\d*)?([eE][-+]?\d+)?", text))
+    return bool(re.fullmatch(r"[-+]?([0-9]+([.,][0-9]*)?|[.,][0-9]+)([eE][-+]?[0-9]+)?", text))
+
+
+def _text_lines(path, what) -> list:
+    """Lines of a text file (UTF-8, a byte-order mark allowed); a NUL byte (a binary file) is an error.
+
+    Bytes that are not UTF-8 are kept as surrogates (a Latin-1 accent in a header or a text
+    column does no harm); where a number was expected, :func:`not_utf8` says why it is not one.
+    """
+    try:
+        data = Path(path).read_bytes()
+    except OSError as exc:
+        raise InputError("cannot read %s: %s" % (what, exc.strerror), path) from None
+    if b"\x00" in data:
+        raise InputError("NUL byte: this is not a text file", path, data.count(b"\n", 0, data.index(b"\x00")) + 1)
+    if data.startswith(b"\xef\xbb\xbf"):
+        data = data[3:]
+    return data.decode("utf-8", errors="surrogateescape").split("\n")
+
+
+def not_utf8(text: str) -> str:
+    """`` (byte 0x.. is not UTF-8 text)`` when ``text`` holds an undecodable byte, else ``""``."""
+    for ch in text:
+        if "\udc80" <= ch <= "\udcff":
+            return " (byte 0x%02x is not UTF-8 text)" % (ord(ch) - 0xdc00)
+    return ""
 
 
 @dataclass
@@ -103,7 +128,8 @@ def read_optical_folder(folder) -> OpticalLibrary:
     """Collect ``*/ReflectancesMean/*.csv`` and ``*/TransmittancesMean/*.csv`` under ``folder``."""
     folder = Path(folder)
     if not folder.is_dir():
-        raise InputError("optical folder not found", folder)
+        raise InputError("optical: expected a folder (with */ReflectancesMean/*.csv tables), got %s"
+                         % ("a file" if folder.exists() else "nothing: not found"), folder)
     tables = {"ReflectancesMean": {}, "TransmittancesMean": {}}
     for kind, found in tables.items():
         for path in sorted(folder.glob("*/%s/*.csv" % kind)) + sorted(folder.glob("%s/*.csv" % kind)):
@@ -122,29 +148,38 @@ def read_specularities(path) -> dict:
     if not path.exists():
         raise InputError("specularities file not found", path)
     rows = _xlsx_rows(path) if path.suffix.lower() == ".xlsx" else _csv_rows(path)
-    out = {}
+    out, where = {}, {}
     for number, row in rows:
         if len(row) < 2 or row[0] in (None, ""):
             continue
         name, value = str(row[0]).strip(), row[1]
         try:
-            s = float(str(value).replace(",", "."))
+            s = float(str(value).strip().replace(",", "."))
         except ValueError:
             if number == 1:
                 continue   # header
-            raise InputError("expected a specular fraction for %r, got %r" % (name, value), path, number) from None
+            raise InputError("expected a specular fraction for %r, got %r%s" % (name, value, not_utf8(str(value))),
+                             path, number) from None
         if not 0.0 <= s <= 1.0:
             raise InputError("specular fraction %g of %r is not in [0, 1]" % (s, name), path, number)
+        if name in out:
+            raise InputError("material %r appears twice (also line %d)" % (name, where[name]), path, number)
         out[name] = s
+        where[name] = number
+    if not out:
+        raise InputError("no 'material, specular fraction' rows found", path)
     return out
 
 
 def _csv_rows(path):
-    with open(path, newline="", encoding="utf-8", errors="replace") as fh:
-        sample = fh.read(2048)
-        fh.seek(0)
-        delimiter = ";" if sample.count(";") > sample.count(",") else ","
-        return [(i, row) for i, row in enumerate(csv.reader(fh, delimiter=delimiter), start=1)]
+    lines = _text_lines(path, "specularities file")
+    sample = "\n".join(lines)[:2048]
+    delimiter = ";" if sample.count(";") > sample.count(",") else ","
+    reader = csv.reader(lines, delimiter=delimiter)
+    try:
+        return [(reader.line_num, row) for row in reader]
+    except csv.Error as exc:
+        raise InputError("not a readable csv file (%s)" % exc, path, reader.line_num) from None
 
 
 _NS = {"m": "http://schemas.openxmlformats.org/spreadsheetml/2006/main"}
@@ -163,20 +198,29 @@ def _xlsx_rows(path, sheet: str = "Feuil1"):
             names = [s.get("name") for s in book.findall("m:sheets/m:sheet", _NS)]
             index = names.index(sheet) + 1 if sheet in names else 1
             data = ElementTree.fromstring(z.read("xl/worksheets/sheet%d.xml" % index))
-    except (zipfile.BadZipFile, KeyError, ElementTree.ParseError) as exc:
+    except (zipfile.BadZipFile, KeyError, ElementTree.ParseError, OSError, EOFError, RuntimeError,
+            NotImplementedError, zipfile.LargeZipFile) as exc:
         raise InputError("not a readable .xlsx workbook (%s)" % exc, path) from None
     rows = []
     for row in data.iter("{%s}row" % _NS["m"]):
-        number = int(row.get("r", len(rows) + 1))
+        r = row.get("r", str(len(rows) + 1))
+        if not r.isascii() or not r.isdigit():
+            raise InputError("not a readable .xlsx workbook (row number %r)" % r, path)
+        number = int(r)
         cells = {}
         for c in row.findall("m:c", _NS):
-            col = re.match(r"[A-Z]+", c.get("r", "A")).group(0)
+            ref = re.match(r"[A-Z]+", c.get("r", "A"))
+            if ref is None:
+                raise InputError("not a readable .xlsx workbook (cell reference %r)" % c.get("r"), path, number)
             v = c.find("m:v", _NS)
             text = v.text if v is not None else None
             if c.get("t") == "s" and text is not None:
+                if not (text.isascii() and text.isdigit() and int(text) < len(shared)):
+                    raise InputError("not a readable .xlsx workbook (shared string %r of %d)" % (text, len(shared)),
+                                     path, number)
                 text = shared[int(text)]
             elif c.get("t") == "inlineStr":
                 text = "".join(t.text or "" for t in c.iter("{%s}t" % _NS["m"]))
-            cells[col] = text
+            cells[ref.group(0)] = text
         rows.append((number, [cells.get("A"), cells.get("B")]))
     return rows

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import hashlib
 import logging
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -67,6 +68,16 @@ def organ_from_mesh(key, mesh, material, module: str = "", scale: float = 1.0, o
     dropped with one warning per organ.
     """
     front, back = _sides(material, key)
+    given = (scale, offset)
+    try:
+        offset = np.asarray(offset, dtype=np.float64)
+        scale = float(scale)
+    except (TypeError, ValueError):
+        offset, scale = None, math.nan
+    if offset is None or offset.shape != (3,) or not np.isfinite(offset).all() or not (
+            math.isfinite(scale) and scale > 0):
+        raise InputError("organ %r: expected a scale > 0 and an offset (x, y, z) of finite numbers, got %r and %r"
+                         % ((key,) + given))
     try:
         if hasattr(mesh, "vertices") and hasattr(mesh, "faces"):
             vertices, faces = mesh.vertices, mesh.faces
@@ -87,10 +98,11 @@ def organ_from_mesh(key, mesh, material, module: str = "", scale: float = 1.0, o
         raise InputError("organ %r (%s): face index %d outside the %d vertices"
                          % (key, module or "?", faces.max() if faces.max() >= len(vertices) else faces.min(),
                             len(vertices)))
-    tris = vertices[faces] * scale + np.asarray(offset, dtype=np.float64)
-    cross = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
-    area2 = np.linalg.norm(cross, axis=1)
-    extent = np.abs(tris).max(axis=(1, 2)) if len(tris) else np.zeros(0)
+    with np.errstate(invalid="ignore", over="ignore"):     # non-finite triangles are dropped below
+        tris = vertices[faces] * scale + offset
+        cross = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
+        area2 = np.linalg.norm(cross, axis=1)
+        extent = np.abs(tris).max(axis=(1, 2)) if len(tris) else np.zeros(0)
     repeated = (faces[:, 0] == faces[:, 1]) | (faces[:, 1] == faces[:, 2]) | (faces[:, 0] == faces[:, 2])
     good = np.isfinite(tris).all(axis=(1, 2)) & ~repeated & (area2 > (1e-12 * np.maximum(extent, 1e-300)) ** 2)
     dropped = int((~good).sum())
@@ -167,12 +179,19 @@ def plant_material(spec, name: str, chamber) -> Material:
         s = 0.0
     else:
         try:
+            unknown = set(spec) - {"reflectance", "transmittance", "specular"}
             R = np.full(n_bands, float(spec.get("reflectance", 0.0)))
             T = np.full(n_bands, float(spec.get("transmittance", 0.0)))
             s = float(spec.get("specular", 0.0))
         except (AttributeError, TypeError, ValueError):
             raise InputError("organ material %r: expected a table name or {'reflectance': R, "
                              "'transmittance': T}" % (spec,)) from None
+        if unknown:
+            raise InputError("organ material %r: unknown key %r (expected reflectance, transmittance, specular)"
+                             % (name, sorted(unknown)[0]))
+        if not (0 <= R[0] <= 1 and 0 <= T[0] <= 1 and R[0] + T[0] <= 1):
+            raise InputError("organ material %r: expected reflectance R and transmittance T in [0, 1] with "
+                             "R + T <= 1, got R = %g, T = %g" % (name, R[0], T[0]))
     R, T = np.clip(R, 0, 1), np.clip(T, 0, 1)
     if not 0 <= s <= 1:
         raise InputError("organ material %r: specular fraction must be in [0, 1]" % (name,))

@@ -34,7 +34,11 @@ UNSUPPORTED_TYPES = {"cone", "cup", "source", "instance", "mesh", "dielectric", 
                      "prism2", "spotlight", "illum", "mist", "BSDF", "aBSDF", "ashik2", "WGMDfunc",
                      "brighttext", "colortext", "alias", "trans2", "plastic2", "metal2"}
 
-_TOKEN = re.compile(r"\S+")
+# Radiance splits on C isspace (space, \t, \n, \v, \f, \r): ASCII whitespace only.
+_TOKEN = re.compile(r"\S+", re.ASCII)
+_COUNT = re.compile(r"[0-9]+")
+_INT = re.compile(r"[-+]?[0-9]+")
+_REAL = re.compile(r"[-+]?([0-9]+\.?[0-9]*|\.[0-9]+)([eE][-+]?[0-9]+)?")
 
 
 @dataclass
@@ -56,11 +60,29 @@ class Primitive:
 
 
 def tokenize(text: str):
-    """Yield ``(token, line_number)`` pairs; ``#`` comments are dropped."""
-    for number, raw in enumerate(text.splitlines(), start=1):
+    """Yield ``(token, line_number)`` pairs; ``#`` comments are dropped.
+
+    Lines are counted on ``\n`` only (as an editor and Radiance count them), not on
+    the other characters :meth:`str.splitlines` breaks at.
+    """
+    for number, raw in enumerate(text.split("\n"), start=1):
         line = raw.split("#", 1)[0]
         for match in _TOKEN.finditer(line):
             yield match.group(0), number
+
+
+def _bad_byte(text: str, name: str):
+    """Refuse what is not text: a NUL byte, or bytes that are not UTF-8 outside comments."""
+    nul = text.find("\x00")
+    if nul >= 0:
+        raise InputError("NUL byte: this is not a text file (a Radiance scene is plain text)",
+                         name, text.count("\n", 0, nul) + 1)
+    for number, raw in enumerate(text.split("\n"), start=1):
+        code = raw.split("#", 1)[0]
+        for ch in code:
+            if "\udc80" <= ch <= "\udcff":
+                raise InputError("byte 0x%02x is not UTF-8 text (Radiance scenes are ASCII)"
+                                 % (ord(ch) - 0xdc00), name, number)
 
 
 def read_rad(path) -> list:
@@ -68,18 +90,19 @@ def read_rad(path) -> list:
 
     Raises :class:`InputError` naming file and line on any syntax problem: a
     truncated primitive, a count that is not a non-negative integer, a real that
-    is not a finite number, an inline ``!command``.
+    is not a finite number, an inline ``!command``, bytes that are not text.
     """
     path = Path(path)
     try:
-        text = path.read_text(encoding="utf-8", errors="replace")
+        data = path.read_bytes()
     except OSError as exc:
         raise InputError("cannot read Radiance file: %s" % exc.strerror, path) from None
-    return parse_rad(text, str(path))
+    return parse_rad(data.decode("utf-8", errors="surrogateescape"), str(path))
 
 
 def parse_rad(text: str, name: str = "<string>") -> list:
     """Parse Radiance text (see :func:`read_rad`); ``name`` is used in error messages."""
+    _bad_byte(text, name)
     tokens = list(tokenize(text))
     prims = []
     i = 0
@@ -96,9 +119,9 @@ def parse_rad(text: str, name: str = "<string>") -> list:
 
     def count(what, start_line):
         tok, line = take("the number of " + what, start_line)
-        if not tok.isdigit():
-            raise InputError("expected the number of %s (a non-negative integer), got %r" % (what, tok),
-                             name, line)
+        if not _COUNT.fullmatch(tok):
+            raise InputError("expected the number of %s (a non-negative integer) of %s %s %s (line %d), got %r"
+                             % (what, modifier, ptype, ident, start_line, tok), name, line)
         return int(tok)
 
     while i < n:
@@ -108,6 +131,11 @@ def parse_rad(text: str, name: str = "<string>") -> list:
                              "(e.g. with Radiance's xform) and pass the result" % tok, name, start)
         modifier, _ = take("a modifier", start)
         ptype, line = take("a primitive type", start)
+        if _REAL.fullmatch(ptype) or ptype.lower() in ("nan", "inf", "infinity"):
+            after = (" (does the count of real arguments of the primitive at line %d match its reals?)"
+                     % prims[-1].line) if prims else ""
+            raise InputError("expected a primitive type (polygon, plastic, ...), got the number %r%s"
+                             % (ptype, after), name, line)
         ident, _ = take("an identifier", start)
         if ptype.startswith("!") or ident.startswith("!"):
             raise InputError("inline commands are not supported", name, line)
@@ -115,20 +143,21 @@ def parse_rad(text: str, name: str = "<string>") -> list:
         ints = []
         for _ in range(count("integer arguments", start)):
             tok, line = take("an integer argument", start)
-            try:
-                ints.append(int(tok))
-            except ValueError:
-                raise InputError("expected an integer argument, got %r" % tok, name, line) from None
+            if not _INT.fullmatch(tok):
+                raise InputError("expected an integer argument, got %r" % tok, name, line)
+            ints.append(int(tok))
         reals = []
         for _ in range(count("real arguments", start)):
             tok, line = take("a real argument", start)
             try:
                 value = float(tok)
             except ValueError:
-                raise InputError("expected a real number, got %r (primitive %s %s)" % (tok, ptype, ident),
-                                 name, line) from None
-            if not math.isfinite(value):
+                value = None
+            if value is not None and not math.isfinite(value):
                 raise InputError("real argument %r is not finite (primitive %s %s)" % (tok, ptype, ident),
+                                 name, line)
+            if value is None or not _REAL.fullmatch(tok):
+                raise InputError("expected a real number, got %r (primitive %s %s)" % (tok, ptype, ident),
                                  name, line)
             reals.append(value)
         prims.append(Primitive(modifier, ptype, ident, strings, ints, reals, name, start))

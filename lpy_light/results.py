@@ -21,6 +21,9 @@ def atomic_write(path: Path, text: str):
     path = Path(path)
     fd, tmp = tempfile.mkstemp(prefix="." + path.name + ".", dir=path.parent)
     try:
+        umask = os.umask(0o022)      # mkstemp makes 0600 files: give results the usual 0666 & ~umask
+        os.umask(umask)
+        os.chmod(tmp, 0o666 & ~umask)
         with os.fdopen(fd, "w", newline="") as fh:
             fh.write(text)
         os.replace(tmp, path)
@@ -143,7 +146,8 @@ def write_run(out_dir, chamber, result, norm=None, extra=None) -> dict:
                      "lost": int(result.counters[3])},
     }
     if norm is not None:
-        summary["normalisation"] = {"how": norm.how, "scale": norm.scale.tolist(), "scale_std": norm.scale_std.tolist()}
+        summary["normalisation"] = {"how": norm.how, "assumption": getattr(norm, "assumption", None),
+                                    "scale": norm.scale.tolist(), "scale_std": norm.scale_std.tolist()}
     summary.update(result.extra)
     if extra:
         summary.update(extra)
@@ -151,6 +155,7 @@ def write_run(out_dir, chamber, result, norm=None, extra=None) -> dict:
     derived = derived_table(chamber, result, norm)
     if derived:
         files["sensors_derived.csv"] = csv_text(derived)
+        summary["derived"] = {"file": "sensors_derived.csv", **units.derived_description(chamber.bands)}
     if chamber.receivers:
         files["receivers.csv"] = csv_text(receiver_table(chamber, result))
     for name, text in files.items():

@@ -11,6 +11,8 @@ Scene files (TOML) name the inputs; paths are relative to the scene file::
     solid_sensors = "receivers.rad"                # opaque sensors with a material; optional
     remove = ["fauxPlafondInf"]                    # identifiers to leave out; optional
     plant_position = [1020, 920, 900]              # where a plant's origin goes (scene units); optional
+    calibration = "measured.csv"                   # measured sensors -> ppfd scale per band; optional
+                                                   # (or {file = "measured.csv", tolerance = 20})
 
     [physics]                                      # optional, SEC2's semantics by default
     one_sided = true          # a surface is seen only from its front (SEC2)
@@ -25,6 +27,7 @@ from __future__ import annotations
 
 import logging
 import math
+import re
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -57,7 +60,7 @@ class Physics:
     specular: str = "mirror"
     coplanar: str = "random"     # coincident coplanar surfaces: "random" (fair choice per hit) | "arbitrary"
     max_depth: int = 50
-    offset: float = 2.0 ** -17   # ray offset, relative to the hit point's coordinates
+    offset: float = 2.0 ** -21   # ray offset, relative to the hit's round-off scale (docs/stability.md)
 
 
 @dataclass
@@ -86,6 +89,7 @@ class Chamber:
     spectrum: object = None     # lamp spectrum (units.read_lamp_spectrum) or None
     optical: object = None      # optical.OpticalLibrary, for organ materials, or None
     plant_position: list | None = None   # where a plant's origin goes, scene units
+    calibration: tuple | None = None     # (measured csv Path, tolerance or None): units.read_measured
     source: str = ""
 
     @property
@@ -105,10 +109,21 @@ class Chamber:
 
 # ------------------------------------------------------------------------------------------
 def _line_of(text: str, key: str) -> int | None:
-    for number, line in enumerate(text.splitlines(), start=1):
-        if line.strip().startswith(key):
+    """Line of ``key = ...`` (or of the table ``[key]``) in a TOML text, or None."""
+    pattern = re.compile(r"\s*(%s|\"%s\"|'%s')\s*=|\s*\[\s*%s\s*\]" % ((re.escape(key),) * 4))
+    for number, line in enumerate(text.split("\n"), start=1):
+        if pattern.match(line):
             return number
     return None
+
+
+def _is_number(x) -> bool:
+    """A finite int or float, not a bool (TOML's true/false are Python bools, which are ints)."""
+    return isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
+
+
+#: coordinates beyond this (in scene units) are refused: Embree traces in single precision
+MAX_COORDINATE = 1e12
 
 
 def load_scene(path, **overrides) -> Chamber:
@@ -130,6 +145,8 @@ def load_scene(path, **overrides) -> Chamber:
                 line = int(msg.split("line ")[1].split(",")[0].split(")")[0])
             except ValueError:
                 line = None
+        elif "end of document" in msg:      # e.g. an unclosed array: the problem shows at the last line
+            line = len(text.rstrip("\n").split("\n"))
         raise InputError("not valid TOML: %s" % msg.split(" (at")[0], path, line) from None
     spec.update({k: v for k, v in overrides.items() if v is not None})
     return chamber_from_spec(spec, path.parent, str(path), text)
@@ -145,13 +162,17 @@ def chamber_from_spec(spec: dict, base: Path, name: str = "<scene>", text: str =
         raise err("unknown key %r (known: %s)" % (k, ", ".join(sorted(_SCENE_KEYS))), k)
     if "geometry" not in spec:
         raise err("missing 'geometry' (a .rad file or a list of them)")
+    if spec["geometry"] in ([], ""):
+        raise err("'geometry' is empty: expected a .rad file or a list of them", "geometry")
+    if "name" in spec and not isinstance(spec["name"], str):
+        raise err("'name' must be a string", "name")
 
     def paths(key):
         value = spec.get(key)
         if value is None:
             return []
         items = value if isinstance(value, list) else [value]
-        if not all(isinstance(v, str) for v in items):
+        if not all(isinstance(v, str) and v for v in items):
             raise err("%r must be a path or a list of paths" % key, key)
         out = []
         for v in items:
@@ -162,22 +183,33 @@ def chamber_from_spec(spec: dict, base: Path, name: str = "<scene>", text: str =
         return out
 
     unit = spec.get("unit", "mm")
-    if unit not in UNITS:
+    if not isinstance(unit, str) or unit not in UNITS:
         raise err("unknown unit %r (use one of %s)" % (unit, ", ".join(UNITS)), "unit")
     bands = spec.get("bands")
     if bands is not None:
-        ok = isinstance(bands, list) and bands and all(
-            isinstance(b, list) and len(b) == 2 and all(isinstance(x, (int, float)) for x in b) and b[0] < b[1]
-            for b in bands)
-        if not ok:
-            raise err("'bands' must be a list of [start, end] pairs in nm with start < end", "bands")
+        if not isinstance(bands, list) or not bands:
+            raise err("'bands' must be a list of [start, end] pairs in nm, e.g. [[655, 665]], got %r" % (bands,),
+                      "bands")
+        for b in bands:
+            if not (isinstance(b, list) and len(b) == 2 and all(_is_number(x) for x in b)):
+                raise err("'bands': expected [start, end] in nm (two finite numbers), got %r" % (b,), "bands")
+            if not 0 < b[0] < b[1]:
+                raise err("'bands': expected 0 < start < end, got %r" % (b,), "bands")
         bands = [(float(a), float(b)) for a, b in bands]
+        # overlapping bands are fine (e.g. 400-700 beside 655-665): each band travels on its own weights
+        if len(set(bands)) < len(bands):
+            raise err("'bands': a band is given twice (%s)" % ", ".join(
+                "[%g, %g]" % b for b in sorted(set(b for b in bands if bands.count(b) > 1))), "bands")
     physics = Physics()
-    for key, value in (spec.get("physics") or {}).items():
+    table = spec.get("physics")
+    if table is not None and not isinstance(table, dict):
+        raise err("'physics' must be a table ([physics] with one_sided, lamps, specular, max_depth, offset)",
+                  "physics")
+    for key, value in (table or {}).items():
         if key not in _PHYSICS_KEYS:
             raise err("unknown physics option %r (known: %s)" % (key, ", ".join(_PHYSICS_KEYS)), key)
         kind = _PHYSICS_KEYS[key]
-        if kind is float and isinstance(value, int):
+        if kind is float and isinstance(value, int) and not isinstance(value, bool):
             value = float(value)
         if not isinstance(value, kind) or (kind is int and isinstance(value, bool)):
             raise err("physics option %r must be a %s" % (key, kind.__name__), key)
@@ -190,7 +222,7 @@ def chamber_from_spec(spec: dict, base: Path, name: str = "<scene>", text: str =
         raise err("physics.coplanar must be 'random' or 'arbitrary'", "coplanar")
     if not 0 <= physics.max_depth <= 10000:
         raise err("physics.max_depth must be in 0..10000", "max_depth")
-    if not 0 < physics.offset < 1e-2:
+    if not 0 < physics.offset < 1e-2:   # NaN fails too
         raise err("physics.offset must be in (0, 0.01)", "offset")
 
     optical_dirs = paths("optical")
@@ -200,29 +232,48 @@ def chamber_from_spec(spec: dict, base: Path, name: str = "<scene>", text: str =
     if optical is not None and bands is None:
         raise err("'optical' tables need 'bands' (e.g. bands = [[655, 665]])", "optical")
 
+    remove = spec.get("remove") or []
+    if not isinstance(remove, list) or not all(isinstance(r, str) for r in remove):
+        raise err("'remove' must be a list of identifiers", "remove")
+    pos = spec.get("plant_position")
+    if pos is not None and not (isinstance(pos, list) and len(pos) == 3 and all(_is_number(x) for x in pos)):
+        raise err("'plant_position' must be [x, y, z] in scene units (finite numbers), got %r" % (pos,),
+                  "plant_position")
     prims = []
     for p in paths("geometry"):
         prims.extend(read_rad(p))
     solid = []
     for p in paths("solid_sensors"):
         solid.extend(read_rad(p))
-    remove = spec.get("remove") or []
-    if not isinstance(remove, list) or not all(isinstance(r, str) for r in remove):
-        raise err("'remove' must be a list of identifiers", "remove")
     sensors = Sensors.concat(read_sensors(p) for p in paths("sensors"))
     spectrum = None
     for p in paths("spectrum"):
         from .units import read_lamp_spectrum
         spectrum = read_lamp_spectrum(p)
-    chamber = build_chamber(prims, sensors, bands=bands, optical=optical, specularities=specularities,
-                            physics=physics, unit=unit, solid=solid, remove=remove)
+    try:
+        chamber = build_chamber(prims, sensors, bands=bands, optical=optical, specularities=specularities,
+                                physics=physics, unit=unit, solid=solid, remove=remove)
+    except InputError as exc:
+        if exc.path is None:     # a problem of the scene as a whole: name the scene file
+            raise err(exc.reason, getattr(exc, "key", None)) from None
+        raise
     chamber.spectrum = spectrum
     chamber.optical = optical
-    pos = spec.get("plant_position")
     if pos is not None:
-        if not (isinstance(pos, list) and len(pos) == 3 and all(isinstance(x, (int, float)) for x in pos)):
-            raise err("'plant_position' must be [x, y, z] in scene units", "plant_position")
         chamber.plant_position = [float(x) for x in pos]
+    cal = spec.get("calibration")
+    if cal is not None:
+        if isinstance(cal, str):
+            cal = {"file": cal}
+        tol = cal.get("tolerance") if isinstance(cal, dict) else None
+        if (not isinstance(cal, dict) or set(cal) - {"file", "tolerance"} or not isinstance(cal.get("file"), str)
+                or not (tol is None or (isinstance(tol, (int, float)) and not isinstance(tol, bool) and tol > 0))):
+            raise err("'calibration' must be a csv path or {file = \"measured.csv\", tolerance = D} "
+                      "(D > 0, scene units)", "calibration")
+        p = base / cal["file"] if not Path(cal["file"]).is_absolute() else Path(cal["file"])
+        if not p.exists():
+            raise err("calibration file not found: %s" % p, "calibration")
+        chamber.calibration = (p, None if tol is None else float(tol))
     chamber.source = name
     return chamber
 
@@ -265,6 +316,10 @@ def build_chamber(prims, sensors=None, bands=None, optical=None, specularities=N
         if t in UNSUPPORTED_TYPES:
             raise InputError("Radiance type %r is not supported by lpy-light (%s %s)" % (t, t, prim.identifier),
                              prim.path, prim.line)
+        if t not in SURFACE_TYPES and prim.modifier != "void":
+            raise InputError("unknown primitive type %r (%s %s %s): expected a surface (%s) or a material "
+                             "(%s)" % (t, prim.modifier, t, prim.identifier, ", ".join(SURFACE_TYPES),
+                                       ", ".join(MATERIAL_TYPES)), prim.path, prim.line)
         if t not in SURFACE_TYPES:
             msg = "unknown primitive type %r (%s %s %s): skipped" % (t, prim.modifier, t, prim.identifier)
             log.warning("%s: %s", prim.where, msg)
@@ -291,6 +346,11 @@ def build_chamber(prims, sensors=None, bands=None, optical=None, specularities=N
             raise InputError("%s %s needs %d real arguments, got %d" % (t, prim.identifier, expected, len(r)),
                              prim.path, prim.line)
         emitting = material.type in EMITTING and material.radiance > 0 and not is_receiver
+        big = max((abs(x) for x in r), default=0.0)
+        if big > MAX_COORDINATE:
+            raise InputError("%s %s: coordinate %g is beyond ±%g scene units (the tracer works in single "
+                             "precision); is the unit right?" % (t, prim.identifier, big, MAX_COORDINATE),
+                             prim.path, prim.line)
         try:
             if t == "polygon":
                 surf = geo.triangulate_polygon(np.reshape(r, (-1, 3)))
@@ -333,11 +393,22 @@ def build_chamber(prims, sensors=None, bands=None, optical=None, specularities=N
 
     missing = remove - removed
     if missing:
-        raise InputError("'remove' names identifiers not in the geometry: %s" % ", ".join(sorted(missing)))
+        error = InputError("'remove' names identifiers not in the geometry: %s" % ", ".join(sorted(missing)))
+        error.key = "remove"
+        raise error
     emitters = emit.build()
     if len(emitters) == 0:
-        raise InputError("the scene has no light source (no light/glow surface with radiance > 0)",
-                         prims[0].path if prims else None)
+        error = InputError("the scene has no light source (no light/glow surface with radiance > 0)",
+                           prims[0].path if prims else None)
+        error.key = "geometry"
+        raise error
+    total = float(np.sum(emitters.power))
+    if not (math.isfinite(total) and total > 0):
+        strongest = int(np.argmax(np.nan_to_num(emitters.power, nan=np.inf)))
+        where = [p for p in prims if p.identifier == emitters.name[strongest]]
+        raise InputError("the lamps' total power %g is not a finite positive number (radiance x area overflows); "
+                         "scale the light's radiance down" % total,
+                         where[0].path if where else None, where[0].line if where else None)
     if not tris:
         tris = [np.zeros((0, 3, 3))]
         mats, recv, source = [np.zeros(0, int)], [np.zeros(0, int)], [np.zeros(0, int)]

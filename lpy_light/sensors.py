@@ -90,36 +90,48 @@ def _error(msg, path, line=None):
 
 def read_sensors(path) -> Sensors:
     """Read a sensor csv (disc or quad format, told apart by its header)."""
+    from .optical import _text_lines, not_utf8
+
     path = Path(path)
+    lines = _text_lines(path, "sensor file")
+    reader = csv.reader(lines)
     try:
-        with open(path, newline="", encoding="utf-8", errors="replace") as fh:
-            rows = list(csv.reader(fh))
-    except OSError as exc:
-        raise _error("cannot read sensor file: %s" % exc.strerror, path) from None
-    if not rows:
-        raise _error("sensor file is empty", path, 1)
-    header = [h.strip() for h in rows[0]]
+        numbered = [(reader.line_num, row) for row in reader]
+    except csv.Error as exc:
+        raise _error("not a readable csv file (%s)" % exc, path, reader.line_num) from None
+    numbered = [(n, row) for n, row in numbered if row and any(c.strip() for c in row)]
+    if not numbered:
+        raise _error("sensor file is empty: expected a header %s (discs) or %s (quads), then one sensor a line"
+                     % (",".join(_DISC_COLUMNS), ",".join(_QUAD_COLUMNS)), path, 1)
+    header_line, first = numbered[0]
+    header = [h.strip() for h in first]
+    while header and not header[-1]:
+        header.pop()
     if header[:7] == _DISC_COLUMNS:
         columns, kind = _DISC_COLUMNS, DISC
     elif header[:12] == _QUAD_COLUMNS:
         columns, kind = _QUAD_COLUMNS, QUAD
     else:
-        raise _error("unknown sensor header %r: expected %s (discs) or %s (quads)"
-                     % (",".join(header), ",".join(_DISC_COLUMNS), ",".join(_QUAD_COLUMNS)), path, 1)
+        raise _error("unknown sensor header %r: expected %s (discs) or %s (quads), comma-separated%s"
+                     % (",".join(header), ",".join(_DISC_COLUMNS), ",".join(_QUAD_COLUMNS), not_utf8(",".join(header))),
+                     path, header_line)
     values, source = [], []
-    for number, row in enumerate(rows[1:], start=2):
-        if not row or all(not c.strip() for c in row):
-            continue
-        if len(row) < len(columns):
-            raise _error("expected %d values (%s), got %d" % (len(columns), ",".join(columns), len(row)),
+    for number, row in numbered[1:]:
+        cells = list(row)
+        while len(cells) > len(header) and not cells[-1].strip():
+            cells.pop()     # trailing separators
+        if len(cells) != len(header):
+            raise _error("expected %d values (%s), got %d" % (len(header), ",".join(header), len(cells)),
                          path, number)
         try:
-            v = [float(c) for c in row[:len(columns)]]
+            v = [float(c) for c in cells[:len(columns)]]
         except ValueError:
-            raise _error("expected numbers in columns %s, got %r" % (",".join(columns), ",".join(row)),
-                         path, number) from None
+            raise _error("expected numbers in columns %s, got %r%s" % (",".join(columns), ",".join(row),
+                                                                       not_utf8(",".join(row))), path, number) from None
         if not np.all(np.isfinite(v)):
-            raise _error("non-finite sensor value", path, number)
+            raise _error("non-finite sensor value in %r" % ",".join(row), path, number)
+        if np.abs(v).max() > 1e12:
+            raise _error("sensor value beyond ±1e12 scene units in %r" % ",".join(row), path, number)
         values.append(v)
         source.append((str(path), number))
     if not values:

@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .errors import InputError, ResourceError
 from .kernel import embree
 from .kernel.nee import build_targets
 from .kernel.trace import N_COUNTERS, trace_chunk
@@ -24,6 +25,70 @@ from .geometry import coplanar_partners, partner_free_boxes, triangle_normals
 
 CHUNK = 1 << 15
 ESTIMATORS = ("weighted", "analog", "nee")
+MAX_THREADS = 1024
+MAX_SEED = 2 ** 63 - 1
+
+# ------------------------------------------------------------------------------------------
+# Memory: a run that cannot fit is refused before it allocates anything large.
+#: bytes per triangle the kernel scene allocates: Embree's BVH and float32 copy (~150), the kernel's
+#: vertex, normal, material, receiver and next-event arrays (~150), their chamber-side copies (~110)
+BYTES_PER_TRIANGLE = 512
+#: bytes per transparent sensor besides its tallies: bounding triangles, kernel and target arrays
+BYTES_PER_SENSOR = 1024
+#: share of the available memory a run may plan to use
+MEMORY_SHARE = 0.9
+
+
+def available_memory() -> int | None:
+    """Bytes of memory available to a new allocation (Linux MemAvailable, else free pages), or None."""
+    try:
+        with open("/proc/meminfo") as fh:
+            for line in fh:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    try:
+        return os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    except (AttributeError, ValueError, OSError):
+        return None
+
+
+def tally_bytes(n_rows: int, n_bands: int, n_stats: int = 0) -> int:
+    """Bytes of one set of tallies: ``tally`` (rows, B), ``tally_prod`` (rows, B, B), counters, next-event stats."""
+    return 8 * (n_rows * n_bands * (n_bands + 1) + 3 * n_stats + N_COUNTERS)
+
+
+def memory_estimate(n_rows: int, n_bands: int, threads: int, triangles: int = 0, sensors: int = 0,
+                    n_stats: int = 0) -> dict:
+    """Bytes a run needs, by item: ``tallies`` — each thread holds up to two chunks' tallies in flight
+    (2·threads), plus the running sum and the next sum (2), plus ~3 copies for the results'
+    covariances; ``geometry`` — the kernel scene; ``total``."""
+    one = tally_bytes(n_rows, n_bands, n_stats)
+    copies = 2 * threads + 2 + 3
+    out = {"tally_set": one, "tally_copies": copies, "tallies": one * copies,
+           "geometry": BYTES_PER_TRIANGLE * triangles + BYTES_PER_SENSOR * sensors}
+    out["total"] = out["tallies"] + out["geometry"]
+    return out
+
+
+def _gib(n) -> str:
+    return "%.3g GiB" % (n / 2 ** 30)
+
+
+def check_memory(n_rows: int, n_bands: int, threads: int, triangles: int = 0, sensors: int = 0,
+                 n_stats: int = 0, what: str = "this run"):
+    """Raise :class:`ResourceError` when :func:`memory_estimate` exceeds the available memory."""
+    need = memory_estimate(n_rows, n_bands, threads, triangles, sensors, n_stats)
+    free = available_memory()
+    if free is None or need["total"] <= MEMORY_SHARE * free:
+        return need
+    raise ResourceError(
+        "%s needs about %s of memory, more than the %s available: tallies %d rows x %d band(s) x %d band(s) "
+        "x 8 bytes = %s, held %d times (2 per thread for %d thread(s), the sum, the covariances) = %s; "
+        "geometry %d triangles, %d sensors = %s. Use fewer bands, sensors or threads"
+        % (what, _gib(need["total"]), _gib(free), n_rows, n_bands, n_bands, _gib(need["tally_set"]),
+           need["tally_copies"], threads, _gib(need["tallies"]), triangles, sensors, _gib(need["geometry"])))
 
 
 @dataclass
@@ -52,6 +117,7 @@ class Result:
     materials: list = field(default_factory=list)   # names of the fate rows' materials
     nee_stats: np.ndarray | None = None   # (M + E, 3) shadow rays cast, unblocked, weight deposited
     partial: bool = False
+    interrupted: bool = False     # stopped by KeyboardInterrupt (Ctrl-C), not by ``stop()``
     extra: dict = field(default_factory=dict)
 
     @property
@@ -134,6 +200,10 @@ class KernelScene:
     def __init__(self, chamber, estimator: str = "weighted"):
         if estimator not in ESTIMATORS:
             raise ValueError("estimator must be one of %s, not %r" % (", ".join(ESTIMATORS), estimator))
+        # refuse up front what cannot fit (one thread here; run() checks its own thread count)
+        check_memory(len(chamber.sensors) + 2 * len(chamber.receivers) + len(chamber.materials) + 4,
+                     chamber.n_bands, 1, triangles=len(chamber.triangles), sensors=len(chamber.sensors),
+                     what="this scene")
         self.chamber = chamber
         self.estimator = estimator
         # next-event tallies (estimator "nee"): which targets get expected values instead of counts
@@ -238,7 +308,10 @@ class KernelScene:
             return {}
         self.mat_nee[:] = 1
         self.emit_nee[:] = 1
-        stats = run(self, photons, seed=seed, threads=threads).nee_stats
+        pilot = run(self, photons, seed=seed, threads=threads)
+        if pilot.interrupted:
+            raise KeyboardInterrupt      # Ctrl-C during the pilot: stop, do not trace on with half a pilot
+        stats = pilot.nee_stats
         M = len(self.materials)
         cast, weight = stats[:, 0], stats[:, 2]
         total_w, total_c = max(weight.sum(), 1e-300), max(cast.sum(), 1.0)
@@ -327,6 +400,11 @@ def run(kscene: KernelScene, photons: int, seed: int = 1, threads: int | None = 
     ``progress(done, total, seconds)`` is called as chunks finish;  ``stop()``
     returning True ends the run early: the result then holds the chunks finished
     so far (a prefix of the run, correctly normalised) and ``partial`` is True.
+    A KeyboardInterrupt (Ctrl-C) does the same, and also sets ``interrupted``.
+
+    Refused up front (:class:`~lpy_light.errors.ResourceError`) when the tallies
+    of ``threads`` threads would not fit in the available memory
+    (:func:`check_memory`).
 
     ``precision``: stop as soon as every tally in ``precision_rows`` (default:
     the sensors, else the receivers' incident rows) that has a value has a
@@ -336,12 +414,23 @@ def run(kscene: KernelScene, photons: int, seed: int = 1, threads: int | None = 
     """
     if photons < 1:
         raise ValueError("photons must be >= 1")
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or not 0 <= seed <= MAX_SEED:
+        raise InputError("the seed must be a whole number in 0..2^63-1, got %r" % (seed,))
     threads = threads or default_threads()
+    if not 1 <= threads <= MAX_THREADS:
+        raise InputError("threads must be in 1..%d, got %r" % (MAX_THREADS, threads))
+    n_chunks = math.ceil(photons / CHUNK)
+    threads = min(threads, n_chunks)      # more threads than chunks would only wait
+    n_stats = len(kscene.materials) + len(kscene.emit_nee)
+    check_memory(kscene.n_rows, kscene.n_bands, threads, n_stats=n_stats)
     acc = [np.zeros((kscene.n_rows, kscene.n_bands)), np.zeros((kscene.n_rows, kscene.n_bands, kscene.n_bands)),
-           np.zeros(N_COUNTERS, np.int64), np.zeros((len(kscene.materials) + len(kscene.emit_nee), 3))]
-    chunks = [(c * CHUNK, min(CHUNK, photons - c * CHUNK)) for c in range(math.ceil(photons / CHUNK))]
+           np.zeros(N_COUNTERS, np.int64), np.zeros((n_stats, 3))]
+
+    def chunk(c):
+        return c * CHUNK, min(CHUNK, photons - c * CHUNK)
+
     done = 0
-    partial = False
+    partial = interrupted = False
     start = time.perf_counter()
     window = 2 * threads
     reached = None
@@ -351,20 +440,23 @@ def run(kscene: KernelScene, photons: int, seed: int = 1, threads: int | None = 
                               kscene.n_sensors + np.arange(kscene.n_receivers))
         precision_rows = np.asarray(precision_rows, dtype=np.int64)
         reached = False
+    # (sums, photons) change together in one assignment, so that an interrupt (KeyboardInterrupt)
+    # arriving anywhere leaves the sums of exactly ``done`` photons: a correctly normalised prefix
+    state = (acc, 0)
     with ThreadPoolExecutor(max_workers=threads) as pool:
         pending = []
         next_chunk = 0
         try:
-            while next_chunk < len(chunks) or pending:
-                while next_chunk < len(chunks) and len(pending) < window:
-                    first, count = chunks[next_chunk]
+            while next_chunk < n_chunks or pending:
+                while next_chunk < n_chunks and len(pending) < window:
+                    first, count = chunk(next_chunk)
                     pending.append((count, pool.submit(kscene.trace, seed, first, count)))
                     next_chunk += 1
-                count, fut = pending.pop(0)
+                count, fut = pending[0]
                 part = fut.result()
-                for a, p in zip(acc, part):
-                    a += p
-                done += count
+                state = ([a + p for a, p in zip(state[0], part)], state[1] + count)
+                pending.pop(0)
+                acc, done = state
                 if progress:
                     progress(done, photons, time.perf_counter() - start)
                 if stop is not None and stop() and done < photons:
@@ -376,14 +468,15 @@ def run(kscene: KernelScene, photons: int, seed: int = 1, threads: int | None = 
                         reached = True
                         break
         except KeyboardInterrupt:
-            partial = True
+            partial, interrupted = state[1] < photons, True
         finally:
             for _, fut in pending:
                 fut.cancel()
+    acc, done = state
     seconds = time.perf_counter() - start
     result = Result(done, acc[0], acc[1], acc[2], seconds, threads, seed, kscene.n_sensors, kscene.n_receivers,
                   estimator=kscene.estimator, materials=[m.name for m in kscene.materials], nee_stats=acc[3],
-                  partial=partial)
+                  partial=partial, interrupted=interrupted)
     if precision is not None:
         if not reached and done == photons:
             rel = relative_sigma(acc[0], acc[1], done, precision_rows)

@@ -15,8 +15,10 @@ simulation terms is ``photons / (N · area)``.  To give it units we need how man
       ppfd[s, b] = M_b · (photons[s, b] / area_s) / mean_r (photons[r, b] / area_r).
 
   ``reference`` can name other sensors (row indices).
-* Calibration against measured sensors (``calibrate``): one scale per band,
-  least squares through the origin, residuals reported.
+* Calibration against measured sensors (:func:`read_measured`, :func:`calibrate`):
+  a csv of measured values (µmol m⁻² s⁻¹) per band at sensor sites; one scale
+  per band, least squares through the origin (measured = k_b · photons/area),
+  residuals reported per measured point and as rms / R² per band.
 
 Derived quantities (per sensor or organ): PAR = sum of the bands inside
 400-700 nm when they tile it; R:FR = ppfd(655-665) / ppfd(725-735) (the
@@ -44,15 +46,22 @@ def read_lamp_spectrum(path) -> Spectrum:
         raise InputError("cannot read spectrum: %s" % exc.strerror, path) from None
     wl, val = [], []
     for number, line in enumerate(lines, start=1):
-        parts = line.replace(";", " ").replace(",", " ").split()
-        if not parts:
+        # fields are separated by blanks, ';' or ','; with blanks or ';', a ',' is a decimal comma
+        text = line.strip()
+        if any(c in text for c in " \t;"):
+            parts = text.replace(";", " ").replace(",", ".").split()
+        else:
+            parts = text.split(",")
+        if not text:
             continue
         try:
+            if len(parts) != 2:
+                raise ValueError
             w, v = float(parts[0]), float(parts[1])
-        except (ValueError, IndexError):
+        except ValueError:
             if number == 1:
                 continue
-            raise InputError("expected 'wavelength value', got %r" % line.strip(), path, number) from None
+            raise InputError("expected 'wavelength value' (2 numbers), got %r" % line.strip(), path, number) from None
         if not (np.isfinite(w) and np.isfinite(v)) or v < 0:
             raise InputError("expected a finite, non-negative spectral value, got %r" % line.strip(), path, number)
         if wl and w <= wl[-1]:
@@ -69,13 +78,25 @@ def band_photon_flux(spectrum: Spectrum, bands) -> np.ndarray:
     return np.array([spectrum.band_mean(a, b) * (b - a) for a, b in bands])
 
 
+#: what :func:`from_spectrum` assumes (written to summary.json)
+SPECTRUM_ASSUMPTION = ("the lamp spectrum was measured at the sensor sites: the mean photon flux density over the "
+                       "reference sensors equals the measured band flux (ppfd[s, b] = M_b * density[s, b] / "
+                       "mean_r density[r, b], M_b = integral of the measured spectrum over band b)")
+CALIBRATION_ASSUMPTION = ("measured = k_b * photons / area_m2 per band b, k_b fitted by least squares through "
+                          "the origin over the measured sensors")
+
+
 @dataclass
 class Normalisation:
-    """µmol m⁻² s⁻¹ per (photon packet / scene-unit² / N), per band: ``scale`` (B,) and its σ."""
+    """µmol m⁻² s⁻¹ per (photons / m²) for the run's N photons, per band: ``scale`` (B,) and its σ.
+
+    ppfd[s, b] = scale[b] · photons[s, b] / area_m2[s].
+    """
 
     scale: np.ndarray
     scale_std: np.ndarray
     how: str
+    assumption: str = SPECTRUM_ASSUMPTION
 
 
 def from_spectrum(photons, photons_std, area_m2, spectrum, bands, reference=None) -> Normalisation:
@@ -126,6 +147,18 @@ def par_columns(bands):
     return [i for _, _, i in inside]
 
 
+def derived_description(bands) -> dict:
+    """What ``sensors_derived.csv`` holds for these bands (for summary.json): PAR's bands, R:FR's two bands."""
+    out = {}
+    cols = par_columns(bands)
+    if cols is not None:
+        out["par"] = {"bands": ["%g-%g" % tuple(bands[i]) for i in cols],
+                      "how": "sum of the bands' ppfd that tile 400-700 nm, µmol m-2 s-1"}
+    if band_index(bands, RED) is not None and band_index(bands, FAR_RED) is not None:
+        out["r_fr"] = {"red": "%g-%g" % RED, "far_red": "%g-%g" % FAR_RED, "how": "ppfd(red) / ppfd(far red)"}
+    return out
+
+
 def red_far_red(value, std, bands):
     """R:FR = value[:, red] / value[:, far-red] and its σ, or (None, None) without both bands."""
     r, f = band_index(bands, RED), band_index(bands, FAR_RED)
@@ -162,3 +195,221 @@ def par_and_rfr(x, cov, scale, scale_std, bands):
                     + (scale_std[:, r] / scale[:, r]) ** 2 + (scale_std[:, f] / scale[:, f]) ** 2)
             rfr_std = np.abs(rfr) * np.sqrt(np.maximum(rel2, 0.0))
     return par, par_std, rfr, rfr_std
+
+
+# --- calibration against measured sensors ---------------------------------------------------
+@dataclass
+class Measured:
+    """Measured values at scene sensors, read from a csv (:func:`read_measured`).
+
+    ``sensor`` (P,) the matched scene sensor of each measured row, ``line`` (P,)
+    its line in the file, ``distance`` (P,) from the measured point to that
+    sensor's centre (scene units; 0 when given by ``sensor`` index alone),
+    ``values`` (P, B) µmol m⁻² s⁻¹ (nan where the row has no value for a band),
+    ``columns`` (B,) whether the file has a column for each scene band.
+    """
+
+    path: str
+    sensor: np.ndarray
+    line: np.ndarray
+    distance: np.ndarray
+    values: np.ndarray
+    columns: np.ndarray
+
+
+@dataclass
+class Calibration:
+    """The result of :func:`calibrate`: a :class:`Normalisation`, residual rows and per-band figures."""
+
+    norm: Normalisation
+    rows: list
+    summary: dict
+
+
+def _band_of(header: str, labels, bands):
+    """Index of the scene band a csv column names (``655-665`` or the label itself), None if not a band
+    column, -1 if it looks like a band the scene does not have."""
+    h = header.strip()
+    if h in labels:
+        return labels.index(h)
+    parts = h.replace("nm", "").split("-")
+    if len(parts) == 2:
+        try:
+            a, b = float(parts[0]), float(parts[1])
+        except ValueError:
+            return None
+        i = band_index(bands, (a, b)) if bands else None
+        return -1 if i is None else i
+    return None
+
+
+def sensor_size(sensors) -> np.ndarray:
+    """Default matching tolerance per sensor (scene units): a disc's radius, a quad's centre-to-corner distance."""
+    size = np.array(sensors.radius, float)
+    quad = size == 0
+    if quad.any():
+        size[quad] = np.linalg.norm(sensors.corners[quad] - sensors.center[quad, None, :], axis=2).max(axis=1)
+    return size
+
+
+def read_measured(path, chamber, tolerance: float | None = None) -> Measured:
+    """Read a csv of measured sensors and match each row to a scene sensor.
+
+    Columns: ``x,y,z`` (scene units; the nearest scene sensor is taken, an error
+    if it is farther than ``tolerance``, by default the sensor's own radius) or
+    ``sensor`` (0-based row of the scene's sensors, as in ``sensors.csv``), and
+    one column per band named by its label (``655-665``; ``rad`` for a scene
+    without bands) holding µmol m⁻² s⁻¹.  Empty cells are missing values; other
+    columns are ignored; one row per reading (repeat readings of a site are
+    separate points).
+    """
+    import csv
+
+    path = Path(path)
+    try:
+        with open(path, newline="", encoding="utf-8-sig", errors="replace") as fh:
+            text = fh.read()
+    except OSError as exc:
+        raise InputError("cannot read calibration file: %s" % exc.strerror, path) from None
+    lines = text.splitlines()
+    if not lines or not lines[0].strip():
+        raise InputError("calibration file is empty (expected a header x,y,z or sensor, then band columns)", path, 1)
+    delimiter = ";" if lines[0].count(";") > lines[0].count(",") else ","
+    rows = list(csv.reader(lines, delimiter=delimiter))
+    header = [h.strip() for h in rows[0]]
+    low = [h.lower() for h in header]
+    labels, bands = chamber.band_labels, chamber.bands
+    B = len(labels)
+    band_col = {}
+    for c, h in enumerate(header):
+        b = _band_of(h, labels, bands)
+        if b == -1:
+            raise InputError("column %r is not a band of the scene (bands: %s)" % (h, ", ".join(labels)), path, 1)
+        if b is not None:
+            if b in band_col.values():
+                raise InputError("band %s has two columns" % labels[b], path, 1)
+            band_col[c] = b
+    if not band_col:
+        raise InputError("no band column (expected one or more of %s)" % ", ".join(labels), path, 1)
+    has_xyz = all(k in low for k in "xyz")
+    has_index = "sensor" in low
+    if not (has_xyz or has_index):
+        raise InputError("expected columns x,y,z (a measured point) or sensor (a row of the scene's sensors)", path, 1)
+    S = len(chamber.sensors)
+    if S == 0:
+        raise InputError("calibration needs scene sensors (the scene has none)", path)
+    center = chamber.sensors.center
+    size = sensor_size(chamber.sensors)
+    sensor, line_no, dist, values = [], [], [], []
+    for number, row in enumerate(rows[1:], start=2):
+        if not row or all(not c.strip() for c in row):
+            continue
+        if len(row) < len(header):
+            raise InputError("expected %d values (%s), got %d" % (len(header), ",".join(header), len(row)), path, number)
+        cells = dict(zip(low, (c.strip().replace(",", ".") if delimiter == ";" else c.strip() for c in row)))
+        try:
+            if has_index:
+                s = int(cells["sensor"])
+                if not 0 <= s < S:
+                    raise InputError("sensor %d is not a row of the scene's %d sensors (0-based)" % (s, S), path, number)
+            if has_xyz:
+                p = np.array([float(cells[k]) for k in "xyz"])
+                if not np.isfinite(p).all():
+                    raise ValueError
+        except ValueError:
+            raise InputError("expected %s as numbers, got %r" % ("sensor" if has_index else "x,y,z", ",".join(row)),
+                             path, number) from None
+        d = 0.0
+        if has_xyz:
+            dd = np.linalg.norm(center - p, axis=1)
+            if not has_index:
+                s = int(np.argmin(dd))
+            d = float(dd[s])
+            tol = size[s] if tolerance is None else tolerance
+            if d > tol:
+                raise InputError("measured point (%g, %g, %g) is %.4g %s from the nearest scene sensor (row %d at "
+                                 "%g, %g, %g), more than the tolerance %.4g"
+                                 % (*p, d, chamber.unit, s, *center[s], tol), path, number)
+        v = np.full(B, np.nan)
+        for c, b in band_col.items():
+            cell = row[c].strip()
+            if not cell:
+                continue
+            try:
+                v[b] = float(cell.replace(",", ".") if delimiter == ";" else cell)
+            except ValueError:
+                raise InputError("expected a number for band %s, got %r" % (labels[b], cell), path, number) from None
+            if not np.isfinite(v[b]) or v[b] < 0:
+                raise InputError("expected a finite, non-negative value for band %s, got %r" % (labels[b], cell),
+                                 path, number)
+        sensor.append(s)
+        line_no.append(number)
+        dist.append(d)
+        values.append(v)
+    if not sensor:
+        raise InputError("calibration file has no measured rows", path)
+    columns = np.zeros(B, bool)
+    columns[list(band_col.values())] = True
+    return Measured(str(path), np.array(sensor), np.array(line_no), np.array(dist), np.array(values), columns)
+
+
+def calibrate(measured: Measured, photons, photons_std, area_m2, labels, fallback: Normalisation | None = None
+              ) -> Calibration:
+    """One scale per band, least squares through the origin: measured = k_b · photons / area_m2.
+
+    ``photons``, ``photons_std`` (S, B) for the run's N photons, ``area_m2`` (S,).
+    k_b = Σ x y / Σ x², x = simulated density at the matched sensors, y = measured;
+    σ(k_b) = √(Σ r² / (n − 1) / Σ x²) from the residuals r = y − k_b x (they hold
+    both the measurement's and the simulation's noise), or from the simulation's
+    σ alone for one point.  Bands without a column take ``fallback``'s scale
+    (the lamp spectrum) or raise.  R² = 1 − Σ r² / Σ (y − ȳ)².
+    """
+    B = len(labels)
+    scale, scale_std = np.full(B, np.nan), np.full(B, np.nan)
+    per_band, rows = {}, []
+    s_idx = measured.sensor
+    density = photons[s_idx] / area_m2[s_idx, None]
+    density_std = photons_std[s_idx] / area_m2[s_idx, None]
+    for b, label in enumerate(labels):
+        if not measured.columns[b]:
+            if fallback is None:
+                raise InputError("no column for band %s, and the scene has no lamp spectrum to normalise it"
+                                 % label, measured.path, 1)
+            scale[b], scale_std[b] = fallback.scale[b], fallback.scale_std[b]
+            per_band[label] = {"from": "lamp spectrum", "scale": float(scale[b]), "scale_std": float(scale_std[b])}
+            continue
+        keep = np.isfinite(measured.values[:, b])
+        x, xs, y = density[keep, b], density_std[keep, b], measured.values[keep, b]
+        n = int(keep.sum())
+        sxx = float(x @ x)
+        if n == 0 or not sxx > 0:
+            raise InputError("band %s: %s" % (label, "no measured value" if n == 0 else
+                                               "no simulated photons on the measured sensors (trace more photons)"),
+                             measured.path)
+        k = float(x @ y) / sxx
+        r = y - k * x
+        if n > 1:
+            k_std = float(np.sqrt((r @ r) / (n - 1) / sxx))
+        else:
+            k_std = abs(k) * float(xs[0] / x[0])
+        ss_tot = float(((y - y.mean()) ** 2).sum())
+        with np.errstate(divide="ignore", invalid="ignore"):
+            rel = np.where(y > 0, r / y, np.nan)
+        scale[b], scale_std[b] = k, k_std
+        per_band[label] = {
+            "from": "measured", "points": n, "scale": k, "scale_std": k_std,
+            "rms": float(np.sqrt(np.mean(r ** 2))), "rms_relative": float(np.sqrt(np.nanmean(rel ** 2))),
+            "r2": 1.0 - float(r @ r) / ss_tot if n > 1 and ss_tot > 0 else float("nan"),
+        }
+        if fallback is not None and fallback.scale[b] > 0:
+            per_band[label]["scale_over_spectrum"] = k / float(fallback.scale[b])
+        for j, i in enumerate(np.flatnonzero(keep)):
+            s = int(s_idx[i])
+            rows.append({"line": int(measured.line[i]), "sensor": s, "band": label,
+                         "distance": float(measured.distance[i]), "measured": float(y[j]),
+                         "simulated": k * float(x[j]), "simulated_std": abs(k) * float(xs[j]),
+                         "residual": float(r[j]), "relative_residual": float(rel[j])})
+    how = "calibrated against %s (%d measured rows)" % (measured.path, len(measured.sensor))
+    summary = {"file": measured.path, "rows": int(len(measured.sensor)), "assumption": CALIBRATION_ASSUMPTION,
+               "bands": per_band}
+    return Calibration(Normalisation(scale, scale_std, how, CALIBRATION_ASSUMPTION), rows, summary)

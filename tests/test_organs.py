@@ -95,7 +95,7 @@ def test_next_events_on_organs_match_counting(tmp_path):
     organs = {1: (disc_mesh(60, z=400), ({"reflectance": 0.1, "transmittance": 0.2}, {"reflectance": 0.3})),
               2: (disc_mesh(60, z=300, up=False), (BLACK, WHITE))}
     nee = LightModel(scene, organs={"Leaf": BLACK}, lamp_flux=FLUX, plant_unit="mm", position=(500, 500, 0),
-                     photons=60_000, estimator="nee").intercept(organs)
+                     photons=60_000, estimator="nee", nee_picks=1).intercept(organs)
     counted = LightModel(scene, organs={"Leaf": BLACK}, lamp_flux=FLUX, plant_unit="mm", position=(500, 500, 0),
                          photons=600_000, estimator="weighted").intercept(organs)
     for k in (1, 2):
@@ -204,10 +204,14 @@ def test_angers_leaf_gets_par_and_red_far_red():
     assert np.all(leaf.absorbed > 0) and np.all(leaf.absorbed < leaf.ppfd * leaf.area_m2)
 
 
-def test_par_sigma_includes_the_bands_covariance(tmp_path):
+@pytest.mark.parametrize("with_sensors", [False, True])
+def test_par_sigma_includes_the_bands_covariance(tmp_path, with_sensors):
     """All bands ride on the same photons: PAR's σ must add the bands' σ linearly when they move together.
-    Across seeds, the spread of PAR matches the reported σ, which is √3 above the naive independent sum."""
-    scene = write_scene(tmp_path, BLACK_ROOM, toml_extra="bands = [[400, 500], [500, 600], [600, 700]]\n")
+    Across seeds, the spread of PAR matches the reported σ, which is √3 above the naive independent sum.
+    With sensors in the scene the organs' tally rows come after them (a row offset once picked a sensor's σ)."""
+    sensors = [(500, 500, 100 + 10 * i, 20, 0, 0, 1) for i in range(5)] if with_sensors else None
+    scene = write_scene(tmp_path, BLACK_ROOM, sensors=sensors,
+                        toml_extra="bands = [[400, 500], [500, 600], [600, 700]]\n")
     values, sigmas, naive = [], [], []
     for seed in range(16):
         model = LightModel(scene, organs={"Leaf": BLACK}, lamp_flux=[FLUX, FLUX, FLUX], plant_unit="mm",

@@ -1,0 +1,315 @@
+"""How close the photon kernel gets to Embree's raw ray rate, on the Angers chamber.
+
+Four rates, on 1 and 2 threads (like with like):
+
+(a) ``embreex`` — embreex's own ``EmbreeScene.run(origins, directions, output=1)`` on the chamber's
+    triangles (a plain scene: no filters, both sides, no sensors).  Its ``run()`` is one Cython loop
+    of ``rtcIntersect1`` calls on the calling thread (no TBB inside); "2 threads" runs two Python
+    threads on halves of the batch, which only helps if ``run()`` releases the GIL (the printed
+    scaling says whether it does).
+(b) ``binding`` — a minimal numba loop calling ``rtcIntersect1`` through the kernel's own binding
+    (``kernel.embree`` + ``kernel.ptr``), no physics, writing t, primID, geomID per ray:
+    ``binding-plain`` on the same plain scene as (a), ``binding-kernel`` on the kernel's own
+    scene (one-sided filter on every triangle, 240 transparent-sensor quads with their filter).
+(c) ``kernel`` — ``simulate.run`` on the Angers chamber (estimator ``weighted``, 655-665 nm):
+    rays/s = ``Result.rays / Result.seconds`` (photon rays; this estimator casts no shadow rays);
+(d) photons/s of the same runs.
+
+The rays of (a) and (b) are the same set, distributed like photon paths: photons leave the lamps
+(isotropic, from the lamp axes) and are walked through the kernel's scene with the materials'
+scattering probabilities (band mean of R and T; diffuse, mirror or straight-through as the event
+table says) — so origins lie on the lamps and on the surfaces photons actually reach, in the
+proportions they reach them.  The walk is preparation, not timed.
+
+Timings are best-of-``repeat`` wall-clock (the machine may be shared).  Ratios kernel / raw are
+printed per thread count; the target is >= 0.8.
+
+    .venv/bin/python benchmarks/raw_embree.py [--threads 1 2] [--rays 2e6] [--photons 2e6] [--repeat 5]
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import time
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+import numpy as np
+from numba import njit
+
+from lpy_light import simulate
+from lpy_light.cli import resolve_scene
+from lpy_light.kernel import embree
+from lpy_light.kernel.embree import (ARGS, CAND_COUNT, DIR, GEOM_ID, INVALID_ID, MASK, ORG, PRIM_ID, RAYHIT,
+                                     TFAR, TNEAR)
+from lpy_light.kernel.ptr import call_ptr3, load_f32, load_u32, store_f32, store_i64, store_u32
+from lpy_light.scene import load_scene
+
+_TFAR_MAX = 3.0e38
+
+
+# ---- (b): the raw loop through our binding -------------------------------------------------
+@njit(nogil=True, cache=True)
+def trace_rays(scene, intersect_fn, scratch, org, dirs, out_t, out_prim, out_geom):
+    """Closest hit of every ray (float32 origins/directions, (n, 3)); t = inf and ids -1 on a miss."""
+    rh = scratch + RAYHIT
+    args = scratch + ARGS
+    for i in range(org.shape[0]):
+        store_f32(rh + ORG, org[i, 0])
+        store_f32(rh + ORG + 4, org[i, 1])
+        store_f32(rh + ORG + 8, org[i, 2])
+        store_f32(rh + TNEAR, 0.0)
+        store_f32(rh + DIR, dirs[i, 0])
+        store_f32(rh + DIR + 4, dirs[i, 1])
+        store_f32(rh + DIR + 8, dirs[i, 2])
+        store_f32(rh + DIR + 12, 0.0)
+        store_f32(rh + TFAR, _TFAR_MAX)
+        store_u32(rh + MASK, 0xFFFFFFFF)
+        store_u32(rh + GEOM_ID, INVALID_ID)
+        store_i64(scratch + CAND_COUNT, 0)
+        call_ptr3(intersect_fn, scene, rh, args)
+        gid = load_u32(rh + GEOM_ID)
+        if gid == INVALID_ID:
+            out_t[i] = np.inf
+            out_prim[i] = -1
+            out_geom[i] = -1
+        else:
+            out_t[i] = load_f32(rh + TFAR)
+            out_prim[i] = load_u32(rh + PRIM_ID)
+            out_geom[i] = gid
+
+
+def _binding_pass(handle, org, dirs, threads):
+    """Trace all rays on ``threads`` threads (contiguous slices); returns (seconds, t, prim, geom)."""
+    n = len(org)
+    out_t = np.empty(n, np.float32)
+    out_prim = np.empty(n, np.int64)
+    out_geom = np.empty(n, np.int64)
+    scratches = [embree.new_scratch() for _ in range(threads)]
+    fn = embree.intersect1_address()
+    bounds = np.linspace(0, n, threads + 1).astype(int)
+
+    def part(k):
+        a, b = bounds[k], bounds[k + 1]
+        trace_rays(handle, fn, scratches[k].ctypes.data, org[a:b], dirs[a:b], out_t[a:b], out_prim[a:b],
+                   out_geom[a:b])
+
+    t0 = time.perf_counter()
+    if threads == 1:
+        part(0)
+    else:
+        with ThreadPoolExecutor(threads) as pool:
+            list(pool.map(part, range(threads)))
+    return time.perf_counter() - t0, out_t, out_prim, out_geom
+
+
+# ---- rays distributed like photon paths ----------------------------------------------------
+def photon_like_rays(kscene, n_rays, seed=12345, max_depth=50):
+    """(origins, directions) float32 (n, 3): a walk of photons from the lamps through ``kscene``.
+
+    Each bounce is traced with the kernel's scene (one-sided surfaces as in the kernel); the event
+    at a hit is drawn with the band-mean probabilities of the material's event table."""
+    rng = np.random.default_rng(seed)
+    em = kscene.chamber.emitters
+    prob = np.stack([m.events for m in kscene.materials]).mean(axis=2)     # (M, 5)
+    cum = np.cumsum(prob, axis=1)
+    normal, mat = kscene.tri_normal, kscene.tri_mat[:, 0]
+    geom_offset = kscene.geom_offset
+    offset = kscene.chamber.physics.offset
+    out_o, out_d, total = [], [], 0
+    while total < n_rays:
+        m = max(1024, int((n_rays - total) / 2.2))
+        e = rng.choice(len(em.kind), size=m, p=em.power / em.power.sum())
+        if not np.all(em.kind[e] == 0):
+            raise ValueError("photon_like_rays handles line lamps only (the Angers chamber's)")
+        f = rng.random(m)[:, None]
+        o = em.data[e, 0] + f * (em.data[e, 1] - em.data[e, 0])
+        z = 1 - 2 * rng.random(m)
+        phi = 2 * np.pi * rng.random(m)
+        r = np.sqrt(np.maximum(0, 1 - z * z))
+        d = np.stack([r * np.cos(phi), r * np.sin(phi), z], 1)
+        for depth in range(max_depth + 1):
+            if not len(o):
+                break
+            o32, d32 = o.astype(np.float32), d.astype(np.float32)
+            out_o.append(o32)
+            out_d.append(d32)
+            total += len(o)
+            _, t, prim, geom = _binding_pass(kscene.scene.handle, o32, d32, 1)
+            hit = (geom >= 0) & (geom != embree.GEOM_SENSORS)
+            o, d, t, prim, geom = o[hit], d[hit], t[hit].astype(float), prim[hit], geom[hit]
+            tri = prim + geom_offset[geom]
+            n = normal[tri]
+            back = np.einsum("ij,ij->i", d, n) > 0
+            n[back] *= -1
+            p = o + t[:, None] * d
+            u = rng.random(len(p))
+            ev = (u[:, None] >= cum[mat[tri]][:, :4]).sum(1)          # 0..4 as the kernel's events
+            keep = ev < 4
+            p, d, n, ev, o = p[keep], d[keep], n[keep], ev[keep], o[keep]
+            k = len(p)
+            # cosine lobe about ±n
+            side = np.where((ev == 0) | (ev == 1), 1.0, -1.0)
+            a = np.where(np.abs(n[:, :1]) < 0.9, [[1.0, 0, 0]], [[0, 1.0, 0]])
+            tb = np.cross(n, a)
+            tb /= np.linalg.norm(tb, axis=1, keepdims=True)
+            bb = np.cross(n, tb)
+            u1, u2 = rng.random(k), rng.random(k)
+            rr, ph = np.sqrt(u1), 2 * np.pi * u2
+            lz = np.sqrt(1 - u1)
+            cos_dir = (rr * np.cos(ph))[:, None] * tb + (rr * np.sin(ph))[:, None] * bb + lz[:, None] * n
+            new_d = np.where((ev == 0)[:, None], cos_dir, 0.0)
+            new_d = np.where((ev == 2)[:, None], -cos_dir, new_d)
+            mirror = d - 2 * np.einsum("ij,ij->i", d, n)[:, None] * n
+            new_d = np.where((ev == 1)[:, None], mirror, new_d)
+            new_d = np.where((ev == 3)[:, None], d, new_d)
+            eps = side * offset * (np.abs(p).max(1) + np.abs(o).max(1))
+            o, d = p + eps[:, None] * n, new_d / np.linalg.norm(new_d, axis=1, keepdims=True)
+    org, dirs = np.concatenate(out_o)[:n_rays], np.concatenate(out_d)[:n_rays]
+    perm = np.random.default_rng(seed + 1).permutation(len(org))   # no ordering advantage to either side
+    return np.ascontiguousarray(org[perm]), np.ascontiguousarray(dirs[perm])
+
+
+# ---- (a): embreex ----------------------------------------------------------------------------
+def _embreex_scene(triangles):
+    from embreex import rtcore_scene
+    from embreex.mesh_construction import TriangleMesh
+
+    scene = rtcore_scene.EmbreeScene()
+    mesh = TriangleMesh(scene, np.ascontiguousarray(triangles, dtype=np.float32))
+    return scene, mesh
+
+
+def _embreex_pass(scene, org, dirs, threads):
+    bounds = np.linspace(0, len(org), threads + 1).astype(int)
+
+    def part(k):
+        a, b = bounds[k], bounds[k + 1]
+        return scene.run(org[a:b], dirs[a:b], output=1)
+
+    t0 = time.perf_counter()
+    c0 = time.process_time()
+    if threads == 1:
+        res = [part(0)]
+    else:
+        with ThreadPoolExecutor(threads) as pool:
+            res = list(pool.map(part, range(threads)))
+    return time.perf_counter() - t0, time.process_time() - c0, res
+
+
+# ---- everything -------------------------------------------------------------------------------
+def measure(threads=(1, 2), rays: int = 1_000_000, photons: int = 1_000_000, repeat: int = 3,
+            scene: str = "angers", seed: int = 1, verbose: bool = False) -> dict:
+    """Raw Embree rates (embreex, our binding) and the kernel's, per thread count; best of ``repeat``.
+
+    Returns ``{"rays": ..., "photons": ..., "rays_per_photon": ..., "by_threads": {T: {...}}}``
+    where each entry holds ``embreex``, ``binding_plain``, ``binding_kernel``, ``kernel`` (rays/s,
+    wall clock), ``photons_per_s``, the ratios ``kernel_vs_*``, ``embreex_cpu_per_wall`` (≈ T when
+    ``run()`` runs on T threads at once), and the same rates per CPU-second of the process under
+    ``per_cpu_second`` with their ratios ``cpu_kernel_vs_*``.
+    """
+    def say(*a):
+        if verbose:
+            print(*a, flush=True)
+
+    chamber = load_scene(resolve_scene(scene))
+    ks = simulate.KernelScene(chamber, "weighted")
+    keep = ks.order
+    tris = chamber.triangles[keep]
+    plain = embree.EmbreeScene(two_sided=tris)           # same triangles, no filters, no sensors
+    ex_scene, ex_mesh = _embreex_scene(tris)
+    say("scene %s: %d triangles (%d sensors in the kernel's scene)" % (scene, len(tris), ks.n_sensors))
+    t0 = time.perf_counter()
+    org, dirs = photon_like_rays(ks, int(rays), seed=seed + 12344)
+    say("%d photon-like rays prepared in %.1f s" % (len(org), time.perf_counter() - t0))
+
+    # warm-ups (compilation, caches); the two raw paths must agree on the plain scene
+    _binding_pass(plain.handle, org[:1000], dirs[:1000], 1)
+    s, t_b, p_b, _ = _binding_pass(plain.handle, org[:20000], dirs[:20000], 1)
+    _, _, r = _embreex_pass(ex_scene, org[:20000], dirs[:20000], 1)
+    agree = float(np.mean(r[0]["primID"] == np.where(p_b < 0, -1, p_b)))
+    say("binding and embreex agree on %.4f of the closest hits (plain scene)" % agree)
+    simulate.run(ks, 2000, seed=seed, threads=1)
+
+    out = {"scene": scene, "rays": int(len(org)), "photons": int(photons), "repeat": int(repeat),
+           "agreement_plain": agree, "by_threads": {}}
+    for T in threads:
+        best, cpu_best = {}, {}
+        cpu_wall = []
+
+        def keep(name, n, wall, cpu):
+            best[name] = max(best.get(name, 0), n / wall)
+            cpu_best[name] = max(cpu_best.get(name, 0), n / cpu)
+
+        for _ in range(repeat):
+            wall, cpu, _ = _embreex_pass(ex_scene, org, dirs, T)
+            cpu_wall.append(cpu / wall)
+            keep("embreex", len(org), wall, cpu)
+            for name, handle in (("binding_plain", plain.handle), ("binding_kernel", ks.scene.handle)):
+                c0 = time.process_time()
+                wall = _binding_pass(handle, org, dirs, T)[0]
+                keep(name, len(org), wall, time.process_time() - c0)
+            c0 = time.process_time()
+            res = simulate.run(ks, int(photons), seed=seed, threads=T)
+            cpu = time.process_time() - c0
+            keep("kernel", res.rays, res.seconds, cpu)
+            keep("photons_per_s", res.photons, res.seconds, cpu)
+            out["rays_per_photon"] = res.rays / res.photons
+        best["embreex_cpu_per_wall"] = float(np.median(cpu_wall))
+        for raw in ("embreex", "binding_plain", "binding_kernel"):
+            best["kernel_vs_" + raw] = best["kernel"] / best[raw]
+            best["cpu_kernel_vs_" + raw] = cpu_best["kernel"] / cpu_best[raw]
+        best["per_cpu_second"] = cpu_best
+        out["by_threads"][T] = best
+        say("threads %d: %s" % (T, json.dumps({k: (round(v, 3) if v < 100 else round(v)) for k, v in best.items()
+                                               if not isinstance(v, dict)})))
+    plain.close()
+    return out
+
+
+def report(out) -> str:
+    lines = ["Angers chamber (%s), %d photon-like rays, kernel: %d photons, weighted, %.2f rays/photon; "
+             "best of %d" % (out["scene"], out["rays"], out["photons"], out["rays_per_photon"], out["repeat"]),
+             "%-8s %14s %14s %14s %14s %14s" % ("threads", "embreex", "binding plain", "binding kern.", "kernel",
+                                                "photons/s")]
+    for T, b in out["by_threads"].items():
+        lines.append("%-8s %11.2f M/s %11.2f M/s %11.2f M/s %11.2f M/s %11.2f M/s"
+                     % (T, b["embreex"] / 1e6, b["binding_plain"] / 1e6, b["binding_kernel"] / 1e6,
+                        b["kernel"] / 1e6, b["photons_per_s"] / 1e6))
+    lines.append("ratios kernel / raw, wall clock (target >= 0.8):")
+    for T, b in out["by_threads"].items():
+        lines.append("  %s thread(s): vs embreex %.2f, vs binding plain %.2f, vs binding on the kernel's scene %.2f"
+                     "   (embreex run(): CPU/wall %.2f)"
+                     % (T, b["kernel_vs_embreex"], b["kernel_vs_binding_plain"], b["kernel_vs_binding_kernel"],
+                        b["embreex_cpu_per_wall"]))
+    lines.append("the same per CPU-second of the process (steadier on a shared machine):")
+    for T, b in out["by_threads"].items():
+        c = b["per_cpu_second"]
+        lines.append("  %s thread(s): embreex %.2f, binding plain %.2f, binding kernel %.2f, kernel %.2f M rays/CPU-s, "
+                     "%.2f M photons/CPU-s; kernel / raw: %.2f, %.2f, %.2f"
+                     % (T, c["embreex"] / 1e6, c["binding_plain"] / 1e6, c["binding_kernel"] / 1e6, c["kernel"] / 1e6,
+                        c["photons_per_s"] / 1e6, b["cpu_kernel_vs_embreex"], b["cpu_kernel_vs_binding_plain"],
+                        b["cpu_kernel_vs_binding_kernel"]))
+    return "\n".join(lines)
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--threads", type=int, nargs="+", default=[1, 2])
+    ap.add_argument("--rays", type=float, default=2e6)
+    ap.add_argument("--photons", type=float, default=2e6)
+    ap.add_argument("--repeat", type=int, default=5)
+    ap.add_argument("--scene", default="angers")
+    ap.add_argument("--json", default=None, help="also write the numbers to this file")
+    args = ap.parse_args(argv)
+    out = measure(tuple(args.threads), int(args.rays), int(args.photons), args.repeat, args.scene, verbose=True)
+    print(report(out))
+    if args.json:
+        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.json).write_text(json.dumps(out, indent=2, default=float) + "\n")
+
+
+if __name__ == "__main__":
+    sys.exit(main())
