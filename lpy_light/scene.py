@@ -8,6 +8,7 @@ Scene files (TOML) name the inputs; paths are relative to the scene file::
     optical = "optical"                            # folder of measured tables; optional
     specularities = "optical/Specularities.xlsx"   # or .csv; optional
     bands = [[655, 665]]                           # nm, [start, end); optional
+    spectrum = "spectrum/chambre1_spectrum.txt"    # lamp spectrum -> ppfd (µmol m-2 s-1); optional
     solid_sensors = "receivers.rad"                # opaque sensors with a material; optional
     remove = ["fauxPlafondInf"]                    # identifiers to leave out; optional
     plant_position = [1020, 920, 900]              # where a plant's origin goes (scene units); optional
