@@ -228,13 +228,15 @@ def next_event(vx, vy, vz, nx, ny, nz, mode, m, stat, w, state, scene, occluded_
 
 
 def build_targets(n_sensors, sens_kind, sens_area, sens_center, sens_bound, n_receivers_rows, tri_receiver, tri_verts,
-                  tri_two_sided, receiver_row0, absorbed_row0, sensors=True, receivers=True):
+                  tri_two_sided, receiver_row0, absorbed_row0, sensors=True, receivers=True, receiver_mask=None):
     """Target arrays for :func:`next_event` (see there); numpy, outside the hot loop.
 
     ``tri_receiver`` (T,) receiver index per kernel triangle or -1;
     ``tri_two_sided`` (T,) bool.  Receiver r's incident row is
     ``receiver_row0 + r`` and absorbed row ``absorbed_row0 + r``.
     ``sens_bound`` (S,) a sensor's bounding radius about its centre.
+    ``receiver_mask`` (R,) bool or None: only these receivers are targets (the
+    others are still tallied, by counting).
 
     Returns the target arrays, then ``sensor_target`` (S,) and
     ``receiver_target`` (R,): each one's target index or -1.
@@ -262,6 +264,8 @@ def build_targets(n_sensors, sens_kind, sens_area, sens_center, sens_bound, n_re
         recv_sorted = tri_receiver[order]
         for r in range(n_receivers_rows):
             lo, hi = np.searchsorted(recv_sorted, r), np.searchsorted(recv_sorted, r, side="right")
+            if receiver_mask is not None and not receiver_mask[r]:
+                continue
             tris = order[lo:hi]
             a = tri_area[tris]
             total = a.sum()

@@ -115,12 +115,18 @@ class LightModel:
         With ``estimator="nee"``: targets per next event (default 2: on the rose,
         2 shadow rays per vertex give ~15% (leaves) to ~25% (buds) more
         precision per second than 1; 4 gives no more).
+    targets : iterable of module names or None
+        With ``estimator="nee"``: the modules whose light the model reads and
+        that next events aim at (default None: every organ).  The other organs
+        still block, scatter and absorb light and still get their numbers, by
+        counting the photons that reach them (larger σ, still unbiased); the
+        shadow rays go to the organs that matter.
     """
 
     def __init__(self, scene="angers-12bands", organs=None, photons: int = 300_000, seed: int = 1,
                  threads: int | None = None, plant_unit: str = "cm", position=None, parameter: str = "light",
                  estimator: str = "nee", lamp_flux=None, normalisation_photons: int = 1_000_000,
-                 progress=None, nee_picks: int = 2):
+                 progress=None, nee_picks: int = 2, targets=None):
         from .cli import resolve_scene
 
         self.chamber = scene if hasattr(scene, "triangles") else load_scene(resolve_scene(str(scene)))
@@ -136,6 +142,11 @@ class LightModel:
         if int(nee_picks) < 0:
             raise InputError("nee_picks must be >= 0 (0 = every target at every vertex)")
         self.kscene.nee_picks = int(nee_picks)
+        self.targets = None if targets is None else {str(t) for t in ([targets] if isinstance(targets, str) else targets)}
+        if self.targets is not None and not self.targets <= set(self.organ_materials):
+            raise InputError("targets %s are not organ modules (organs: %s)"
+                             % (", ".join(sorted(self.targets - set(self.organ_materials))),
+                                ", ".join(sorted(self.organ_materials))))
         self._pruned = False
         self.materials: dict = {}
         for spec in self.organ_materials.values():
@@ -217,7 +228,8 @@ class LightModel:
         """Light ``organs`` (list of :class:`~lpy_light.organs.Organ`, chamber units) for one step."""
         n = int(photons or self.photons)
         t0 = time.perf_counter()
-        self.kscene.set_organs(organs, self.materials)
+        targets = None if self.targets is None else [o.module in self.targets for o in organs]
+        self.kscene.set_organs(organs, self.materials, targets)
         self.kscene.nee_sensors = False       # steps report organs; sensors are counted, not targeted
         self.kscene.retarget()
         if not self._pruned and organs:       # once, with the first plant: which vertices see organs

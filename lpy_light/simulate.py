@@ -209,6 +209,7 @@ class KernelScene:
         # next-event tallies (estimator "nee"): which targets get expected values instead of counts
         self.nee_sensors = self.nee_receivers = estimator == "nee"
         self.nee_picks = 1          # targets per next event, drawn at random (0: all of them)
+        self.nee_receiver_mask = None   # (R,) bool: receivers that are next-event targets (None: all)
         tris = chamber.triangles
         area = 0.5 * np.linalg.norm(np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0]), axis=1)
         keep = np.isfinite(tris).all(axis=(1, 2)) & (area > 0)
@@ -287,7 +288,7 @@ class KernelScene:
         targets, sensor_target, receiver_target = build_targets(
             self.n_sensors, self.sens[0], sensors.area, sensors.center, bound, self.n_receivers, self.tri_receiver,
             self.tri_verts, self.two_sided, self.n_sensors, self.n_sensors + self.n_receivers,
-            sensors=self.nee_sensors, receivers=self.nee_receivers)
+            sensors=self.nee_sensors, receivers=self.nee_receivers, receiver_mask=self.nee_receiver_mask)
         # kernel order: tgt_kind .. tgt_area, tgt_center, tgt_near2, nee_tri, nee_cdf, sensor_target, receiver_target
         self.targets = tuple(targets) + (sensor_target, receiver_target)
 
@@ -340,13 +341,16 @@ class KernelScene:
         self.materials.append(material)
         return len(self.materials) - 1
 
-    def set_organs(self, organs, materials: dict):
+    def set_organs(self, organs, materials: dict, targets=None):
         """Put ``organs`` (list of :class:`~lpy_light.organs.Organ`) in the chamber, replacing the previous ones.
 
         ``materials`` maps each front/back name to its Material.  Organ i is
-        receiver ``n_chamber_receivers + i``.
+        receiver ``n_chamber_receivers + i``.  ``targets`` (len(organs),) bool or
+        None: which organs next events aim at (None: all).
         """
         self.organs = list(organs)
+        self.nee_receiver_mask = None if targets is None else np.concatenate(
+            [np.ones(self.n_chamber_receivers, bool), np.asarray(targets, bool).reshape(len(self.organs))])
         R0 = self.n_chamber_receivers
         tris = [o.triangles for o in self.organs]
         mats, recv = [], []

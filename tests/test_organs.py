@@ -106,6 +106,26 @@ def test_next_events_on_organs_match_counting(tmp_path):
     assert nee[2].ppfd[0] < nee[1].ppfd[0]       # the lower leaf is shaded
 
 
+def test_targets_aim_shadow_rays_at_the_organs_that_matter(tmp_path):
+    """``targets``: next events go to the named modules only; the others are counted — unbiased either way,
+    and the split shows in the σ's (a counted disc is far noisier than a targeted one)."""
+    scene = write_scene(tmp_path, ROOM)
+    grey = {"reflectance": 0.3, "transmittance": 0.1}
+    organs = {1: (disc_mesh(60, z=400), grey, "Leaf"), 2: (disc_mesh(60, z=300, up=False), grey, "Stem")}
+    kw = dict(organs={"Leaf": grey, "Stem": grey}, lamp_flux=FLUX, plant_unit="mm", position=(500, 500, 0))
+    aimed = LightModel(scene, photons=60_000, estimator="nee", nee_picks=1, targets=["Leaf"], **kw).intercept(organs)
+    every = LightModel(scene, photons=60_000, estimator="nee", nee_picks=1, **kw).intercept(organs)
+    counted = LightModel(scene, photons=600_000, estimator="weighted", **kw).intercept(organs)
+    for k in (1, 2):
+        a, sa = aimed[k].ppfd[0], aimed[k].ppfd_std[0]
+        b, sb = counted[k].ppfd[0], counted[k].ppfd_std[0]
+        assert abs(a - b) < 4 * math.hypot(sa, sb), (k, a, b, sa, sb)
+    rel = lambda r, k: r[k].ppfd_std[0] / r[k].ppfd[0]
+    assert rel(aimed, 2) > 1.5 * rel(every, 2)       # the Stem is no longer a target (same seed: 1.0 if ignored)
+    with pytest.raises(InputError, match="Root"):
+        LightModel(scene, targets=["Root"], **kw)
+
+
 def test_unchanged_organs_are_not_converted_again(black_room):
     model = _model(black_room, photons=2_000)
     plant = {1: disc_mesh(30, z=500), 2: disc_mesh(20, z=400)}
