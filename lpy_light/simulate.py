@@ -414,7 +414,8 @@ def run(kscene: KernelScene, photons: int, seed: int = 1, threads: int | None = 
     the sensors, else the receivers' incident rows) that has a value has a
     relative σ ≤ ``precision`` (checked in chunk order after ``min_photons``,
     so the stopping point depends on the seed only); ``photons`` is then a cap.
-    ``extra["precision_reached"]`` says whether it was met.
+    ``extra["precision_reached"]`` says whether it was met.  ``progress`` then
+    gets, as its total, the photons that the largest σ so far says are needed.
     """
     if photons < 1:
         raise ValueError("photons must be >= 1")
@@ -461,16 +462,21 @@ def run(kscene: KernelScene, photons: int, seed: int = 1, threads: int | None = 
                 state = ([a + p for a, p in zip(state[0], part)], state[1] + count)
                 pending.pop(0)
                 acc, done = state
+                worst = None         # with ``precision``: the largest relative σ so far
+                if precision is not None and done >= min(min_photons, photons) and done < photons:
+                    rel = relative_sigma(acc[0], acc[1], done, precision_rows)
+                    worst = float(rel.max()) if rel.size else float("inf")   # nothing tallied yet
                 if progress:
-                    progress(done, photons, time.perf_counter() - start)
+                    # with ``precision``, the photons it should take (σ ∝ 1/√N), capped at ``photons``
+                    total = photons if not worst or not np.isfinite(worst) else \
+                        int(min(photons, max(done, done * (worst / precision) ** 2)))
+                    progress(done, total, time.perf_counter() - start)
                 if stop is not None and stop() and done < photons:
                     partial = True
                     break
-                if precision is not None and done >= min(min_photons, photons) and done < photons:
-                    rel = relative_sigma(acc[0], acc[1], done, precision_rows)
-                    if rel.size and rel.max() <= precision:
-                        reached = True
-                        break
+                if worst is not None and worst <= precision:
+                    reached = True
+                    break
         except KeyboardInterrupt:
             partial, interrupted = state[1] < photons, True
         finally:
