@@ -1,10 +1,13 @@
 """lpy-light against Radiance's rtrace on a room both can simulate exactly.
 
 A closed room (mm) with a Lambertian light panel in the ceiling, grey Lambertian walls, a darker
-floor, a two-sided block top and a mirror on one wall; sensors facing up, down and sideways.
-Radiance's semantics there are lpy-light's with ``[physics] one_sided = false`` (every surface seen
-from both sides): ``plastic`` with specularity 0 is Lambertian with reflectance = colour, ``mirror``
-reflects specularly with reflectance = colour, ``light`` emits Lambertian from its front.
+floor, a two-sided block top, a mirror on one wall and a diffusing ``trans`` sheet over half the
+room; sensors facing up, down and sideways.  Radiance's semantics there are lpy-light's with
+``[physics] one_sided = false`` (every surface seen from both sides) and ``materials = "radiance"``
+(Radiance's split of ``trans`` parameters): ``plastic`` with specularity 0 is Lambertian with
+reflectance = colour, ``mirror`` reflects specularly with reflectance = colour, ``trans`` with
+specularity 0 and tspec 0 reflects C(1 − t) and transmits C·t diffusely, ``light`` emits Lambertian
+from its front.
 
 Reference: ``rtrace -I`` (irradiance at each sensor's centre along its normal) with
 ``-aa 0 -lr 0`` (no irradiance cache, no hard depth limit: Russian roulette on ``-lw``), jittered
@@ -51,6 +54,7 @@ def room_rad() -> str:
            "void plastic ceiling\n0\n0\n5 0.7 0.7 0.7 0 0\n\n"
            "void plastic block\n0\n0\n5 0.4 0.4 0.4 0 0\n\n"
            "void mirror glass\n0\n0\n3 0.8 0.8 0.8\n\n"
+           "void trans diffuser\n0\n0\n7 0.6 0.6 0.6 0 0 0.5 0\n\n"
            "void light panel\n0\n0\n3 %g %g %g\n\n" % (RADIANCE, RADIANCE, RADIANCE))
     out += _poly("floor", "floor", [(0, 0, 0), (L, 0, 0), (L, L, 0), (0, L, 0)])
     out += _poly("ceiling", "ceiling", [(0, 0, L), (0, L, L), (L, L, L), (L, 0, L)])
@@ -62,6 +66,7 @@ def room_rad() -> str:
     out += _poly("panel", "panel", [(a, a, z), (a, b, z), (b, b, z), (b, a, z)])          # faces down
     out += _poly("block", "blocktop", [(350, 600, 250), (650, 600, 250), (650, 900, 250), (350, 900, 250)])
     out += _poly("glass", "mirror", [(1, 150, 200), (1, 850, 200), (1, 850, 850), (1, 150, 850)])  # faces +x
+    out += _poly("diffuser", "sheet", [(500, 0, 750), (L, 0, 750), (L, L, 750), (500, L, 750)])  # half the room
     return out
 
 
@@ -72,7 +77,8 @@ def write_scene(folder: Path) -> Path:
         "%g,%g,%g,%g,%g,%g,%g" % (x, y, z, RADIUS, nx, ny, nz) for x, y, z, nx, ny, nz in SENSORS]
     (folder / "sensors.csv").write_text("\n".join(rows) + "\n")
     (folder / "room.toml").write_text('geometry = "room.rad"\nsensors = "sensors.csv"\nunit = "mm"\n\n'
-                                      "[physics]\none_sided = false     # Radiance's semantics\n")
+                                      "[physics]\none_sided = false     # Radiance's semantics\n"
+                                      'materials = "radiance"    # trans split as Radiance does\n')
     return folder / "room.toml"
 
 

@@ -22,6 +22,13 @@ specularity table's value, else the ``.rad`` specularity.  Radiance parameters:
   ``trans`` divides these differently; see docs/physics.md.)
 * ``mirror`` R G B — R = mean, all specular.
 * ``light``/``glow`` — emit; as surfaces they absorb everything.
+
+With ``[physics] materials = "radiance"`` a material *without* measured tables
+takes Radiance's own energy split instead (C = mean of R, G, B; no Fresnel or
+roughness terms): ``plastic`` diffuse C(1 − s), specular s; ``metal`` diffuse
+C(1 − s), specular C·s; ``trans`` diffuse reflection C(1 − s)(1 − t), specular
+reflection s, transmission C(1 − s)·t, of which the part ``tspec`` is specular.
+Measured tables always give R and T directly.
 """
 from __future__ import annotations
 
@@ -49,8 +56,11 @@ class Material:
     where: str = ""
 
 
-def build_material(prim, bands, optical=None, specularities=None) -> Material:
-    """Event table of one material primitive for ``bands`` (list of (start, end) nm, or None = rad values)."""
+def build_material(prim, bands, optical=None, specularities=None, reading: str = "sec2") -> Material:
+    """Event table of one material primitive for ``bands`` (list of (start, end) nm, or None = rad values).
+
+    ``reading``: how ``.rad`` parameters of a material without tables become R, s, T — "sec2"
+    (default) or "radiance" (see the module docstring)."""
     n_bands = 1 if bands is None else len(bands)
     expected = MATERIAL_TYPES[prim.type]
     if len(prim.reals) != expected:
@@ -86,11 +96,25 @@ def build_material(prim, bands, optical=None, specularities=None) -> Material:
     events[SPECULAR_R] = R * s
     events[DIFFUSE_T] = T * (1 - tspec)
     events[SPECULAR_T] = T * tspec
+    tabled = optical is not None and bands is not None and (
+        prim.identifier in optical.reflectance or prim.identifier in optical.transmittance)
+    if reading == "radiance" and prim.type in ("plastic", "metal", "trans") and not tabled:
+        C = float(np.mean(r[:3]))
+        t = r[5] if prim.type == "trans" else 0.0
+        events[DIFFUSE_R] = C * (1 - s) * (1 - t)
+        events[SPECULAR_R] = C * s if prim.type == "metal" else s
+        events[DIFFUSE_T] = C * (1 - s) * t * (1 - tspec)
+        events[SPECULAR_T] = C * (1 - s) * t * tspec
+        R = events[DIFFUSE_R] + events[SPECULAR_R]
+        T = events[DIFFUSE_T] + events[SPECULAR_T]
     total = R + T
     if np.any(total > 1 + 1e-9):
         b = int(np.argmax(total))
-        raise InputError("%s %s reflects and transmits %.4g > 1 (band %d): not energy-conserving"
-                         % (prim.type, prim.identifier, total[b], b), prim.path, prim.line)
+        hint = ("" if reading == "radiance" or prim.type != "trans" else
+                " (read as SEC2 does: R = mean colour, T = trans; for Radiance's own split of these "
+                "parameters set [physics] materials = \"radiance\")")
+        raise InputError("%s %s reflects and transmits %.4g > 1 (band %d): not energy-conserving%s"
+                         % (prim.type, prim.identifier, total[b], b, hint), prim.path, prim.line)
     events[ABSORB] = np.clip(1 - total, 0, 1)
     return Material(prim.identifier, prim.type, events, roughness=rough, where=prim.where)
 

@@ -20,6 +20,7 @@ Scene files (TOML) name the inputs; paths are relative to the scene file::
     lamps = "line"            # light cylinders: isotropic line sources (SEC2) | "lambertian"
     specular = "mirror"       # specular reflection: "mirror" (SEC2) | "phong" (lobe from roughness)
     coplanar = "random"       # a hit where surfaces coincide picks one at random (SEC2) | "arbitrary"
+    materials = "sec2"        # .rad parameters of untabled materials: SEC2's reading | "radiance"
     max_depth = 50            # scattering events before a photon is cut
 
 Without ``bands`` the scene has one band, ``rad``, with the ``.rad`` values.
@@ -49,7 +50,7 @@ UNITS = {"mm": 1e-3, "cm": 1e-2, "dm": 1e-1, "m": 1.0, "km": 1e3}
 _SCENE_KEYS = {"geometry", "sensors", "unit", "optical", "specularities", "bands", "solid_sensors", "remove",
                "physics", "spectrum", "calibration", "name", "plant_position"}
 _PHYSICS_KEYS = {"one_sided": bool, "lamps": str, "specular": str, "max_depth": int, "offset": float,
-                 "coplanar": str}
+                 "coplanar": str, "materials": str}
 
 
 @dataclass
@@ -60,6 +61,7 @@ class Physics:
     lamps: str = "line"
     specular: str = "mirror"
     coplanar: str = "random"     # coincident coplanar surfaces: "random" (fair choice per hit) | "arbitrary"
+    materials: str = "sec2"      # .rad material parameters without tables: "sec2" | "radiance" (materials.py)
     max_depth: int = 50
     offset: float = 2.0 ** -21   # ray offset, relative to the hit's round-off scale (docs/stability.md)
 
@@ -221,6 +223,8 @@ def chamber_from_spec(spec: dict, base: Path, name: str = "<scene>", text: str =
         raise err("physics.specular must be 'mirror' or 'phong'", "specular")
     if physics.coplanar not in ("random", "arbitrary"):
         raise err("physics.coplanar must be 'random' or 'arbitrary'", "coplanar")
+    if physics.materials not in ("sec2", "radiance"):
+        raise err("physics.materials must be 'sec2' or 'radiance'", "materials")
     if not 0 <= physics.max_depth <= 10000:
         raise err("physics.max_depth must be in 0..10000", "max_depth")
     if not 0 < physics.offset < 1e-2:   # NaN fails too
@@ -311,7 +315,7 @@ def build_chamber(prims, sensors=None, bands=None, optical=None, specularities=N
             if prim.modifier != "void":
                 raise InputError("material %s %s: modifier %r not supported (materials must be modified by "
                                  "'void')" % (t, prim.identifier, prim.modifier), prim.path, prim.line)
-            materials.append(build_material(prim, bands, optical, specularities))
+            materials.append(build_material(prim, bands, optical, specularities, physics.materials))
             current[prim.identifier] = len(materials) - 1
             continue
         if t in UNSUPPORTED_TYPES:

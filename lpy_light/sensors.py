@@ -89,12 +89,17 @@ def _error(msg, path, line=None):
 
 
 def read_sensors(path) -> Sensors:
-    """Read a sensor csv (disc or quad format, told apart by its header)."""
+    """Read a sensor csv (disc or quad format, told apart by its header; separated by commas, or by
+    semicolons or tabs with decimal commas allowed)."""
     from .optical import _text_lines, not_utf8
 
     path = Path(path)
     lines = _text_lines(path, "sensor file")
-    reader = csv.reader(lines)
+    # the separator is told by the header: commas (SEC2), or semicolons / tabs (spreadsheet exports,
+    # where a decimal comma is then allowed)
+    head = next((ln for ln in lines if ln.strip()), "")
+    delimiter = ";" if ";" in head and "," not in head else "\t" if "\t" in head and "," not in head else ","
+    reader = csv.reader(lines, delimiter=delimiter)
     try:
         numbered = [(reader.line_num, row) for row in reader]
     except csv.Error as exc:
@@ -124,7 +129,7 @@ def read_sensors(path) -> Sensors:
             raise _error("expected %d values (%s), got %d" % (len(header), ",".join(header), len(cells)),
                          path, number)
         try:
-            v = [float(c) for c in cells[:len(columns)]]
+            v = [float(c.replace(",", ".") if delimiter != "," else c) for c in cells[:len(columns)]]
         except ValueError:
             raise _error("expected numbers in columns %s, got %r%s" % (",".join(columns), ",".join(row),
                                                                        not_utf8(",".join(row))), path, number) from None

@@ -66,3 +66,24 @@ def test_concave_polygon_keeps_area_and_winding():
     np.testing.assert_allclose(triangle_normals(tris), [[0, 0, 1]] * len(tris))
     tris = triangulate_polygon(L[::-1])
     np.testing.assert_allclose(triangle_normals(tris), [[0, 0, -1]] * len(tris))
+
+
+def test_material_readings_sec2_and_radiance():
+    """SEC2 reads trans as (R = colour, T = trans); Radiance splits C(1-s)(1-t) / s / C(1-s)t."""
+    import numpy as np
+
+    from lpy_light.materials import ABSORB, DIFFUSE_R, DIFFUSE_T, SPECULAR_R, SPECULAR_T, build_material
+
+    text = ("void trans t 0 0 7 0.6 0.6 0.6 0.1 0 0.5 0.2\nvoid plastic p 0 0 5 0.5 0.5 0.5 0.1 0\n"
+            "void metal m 0 0 5 0.5 0.5 0.5 0.1 0\n")
+    t, p, m = parse_rad(text, "x.rad")
+    with pytest.raises(InputError, match="materials = .radiance"):
+        build_material(t, None, reading="sec2")             # 0.6 + 0.5 > 1: SEC2's reading is not conserving
+    e = build_material(t, None, reading="radiance").events[:, 0]
+    C, s, tr, ts = 0.6, 0.1, 0.5, 0.2
+    assert np.allclose(e[[DIFFUSE_R, SPECULAR_R, DIFFUSE_T, SPECULAR_T]],
+                       [C * (1 - s) * (1 - tr), s, C * (1 - s) * tr * (1 - ts), C * (1 - s) * tr * ts])
+    assert np.isclose(e.sum(), 1) and e[ABSORB] > 0
+    assert np.allclose(build_material(p, None, reading="radiance").events[[DIFFUSE_R, SPECULAR_R], 0], [0.45, 0.1])
+    assert np.allclose(build_material(m, None, reading="radiance").events[[DIFFUSE_R, SPECULAR_R], 0], [0.45, 0.05])
+    assert np.allclose(build_material(p, None).events[[DIFFUSE_R, SPECULAR_R], 0], [0.45, 0.05])   # SEC2: R·s
