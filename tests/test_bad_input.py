@@ -214,8 +214,8 @@ CASES = [
     # --- sensors --------------------------------------------------------------------------
     ("sensors-missing-column", {"sensors.csv": "X,Y,Z,rayon_capteur,Xnorm,Ynorm\n1,2,3,4,0,0\n"}, "sensors.csv", 1,
      "unknown sensor header"),
-    ("sensors-semicolons", {"sensors.csv": D.replace(",", ";") + "1;2;3;4;0;0;1\n"}, "sensors.csv", 1,
-     "unknown sensor header"),
+    ("sensors-mixed-separators", {"sensors.csv": D.replace(",", ";") + "1,2;3;4;0;0;1\n"}, "sensors.csv", 2,
+     "expected 7 values"),
     ("sensors-zero-normal", {"sensors.csv": D + "300,300,400,60,0,0,1\n300,300,400,60,0,0,0\n"}, "sensors.csv", 3,
      "sensor normal is zero"),
     ("sensors-negative-radius", {"sensors.csv": D + "300,300,400,-6,0,0,1\n"}, "sensors.csv", 2,
@@ -318,6 +318,7 @@ def test_corpus_is_large_and_base_is_valid(tmp_path, capsys):
     {TABLE_PATH: "\ufeff" + table().replace("\n", "\r\n")},             # byte-order mark, CRLF
     {"sensors.csv": "\ufeff" + SENSORS.replace("\n", ",\n")},           # BOM, trailing separators
     {"sensors.csv": SENSORS.replace("\n", "\r\n") + "\n\n"},             # CRLF, blank lines
+    {"sensors.csv": SENSORS.replace(",", ";").replace(".", ",")},          # spreadsheet export: ; and decimal comma
     {"scene.rad": RAD + "# un mur \xe9 commentaire\n"},                  # non-ASCII in a comment (UTF-8)
     {"scene.rad": RAD.encode() + b"# latin-1 comment: caf\xe9\n"},      # and non-UTF-8 in a comment
     {"scene.rad": RAD.replace("\n", "\r\n")},
