@@ -46,8 +46,8 @@ from .embree import (ARGS, CAND, CAND_CAP, CAND_COUNT, DIR, GEOM_ID, HIT_U, HIT_
                      PRIM_ID, RAYHIT, TFAR, TNEAR)
 from .ptr import call_ptr3, load_f32, load_i64, load_u32, store_f32, store_i64, store_u32
 from .rng import seed_stream, uniform
-from .nee import V_ISOTROPIC, V_LAMBERT, V_SURFACE, next_event
-from .sampling import cosine_hemisphere, mirror, phong_lobe, to_world, uniform_sphere
+from .nee import INV_4PI, V_ISOTROPIC, V_LAMBERT, V_SURFACE, next_event, visible
+from .sampling import cosine_hemisphere, frame, mirror, phong_lobe, to_world, uniform_sphere
 
 # scattering events, in the order their probabilities are accumulated
 DIFFUSE_R, SPECULAR_R, DIFFUSE_T, SPECULAR_T, ABSORB = 0, 1, 2, 3, 4
@@ -180,6 +180,198 @@ def _pick_coplanar(tri, px, py, pz, dx, dy, dz, cop_start, cop_list, cop_box, co
     return chosen
 
 
+@njit(cache=True)
+def _image_event(vx, vy, vz, nx, ny, nz, mode, m, w, state, scene, intersect_fn, occluded_fn, scratch, offset_rel,
+                 vscale, tgt_kind, tgt_row, tgt_ref, tgt_area, tgt_center, tgt_near2, sens_center, sens_normal,
+                 sens_radius, sens_corners, geom_offset, tri_verts, tri_normal, tri_mat, tri_two_sided, mat_prob,
+                 mat_phong, cop_start, cop_list, cop_box, cop_free, tri_plane, mir_point, mir_normal, mir_list,
+                 mir_box, mir_one_sided, picks, contrib, out_k, out_w, counters, nee_stats, stat0):
+    """Next events through one perfect mirror: the expected light that the segment leaving v brings to a
+    transparent sensor after one specular reflection on a mirror plane (the image method).
+
+    For ``picks`` draws: a target t (uniform over the targets; only sensors are served) and a mirror plane P
+    (uniform over ``mir_list``); a point x on t, its image x' across P; the ray v → x' must first meet a
+    triangle of P (after the coplanar pick, as a photon would), from a side whose material is a perfect
+    mirror, and the leg from there to x must be free.  Deposit
+    w · f_v(ω) · P_spec,b · A_t |cos θ_x| / |x' − v|² · n_targets · n_planes / picks  (a mirror keeps solid angle).
+    A vertex whose image across P lies within the target's exclusion radius makes no such event: the
+    crossing is counted instead (:func:`trace_chunk` applies the same test).  ``nee_stats[stat0 + P]``
+    counts rays cast, paths found, weight deposited.  Returns the number of deposits in ``out_k``/``out_w``.
+    """
+    n_bands = w.shape[0]
+    n_tgt = tgt_kind.shape[0]
+    n_mir = mir_list.shape[0]
+    if n_tgt == 0 or n_mir == 0 or picks <= 0:
+        return 0
+    scale = n_tgt * n_mir / picks
+    vmag = max(abs(vx), abs(vy), abs(vz), vscale)
+    rh = scratch + RAYHIT
+    args = scratch + ARGS
+    n_out = 0
+    for _ in range(picks):
+        t = min(int(uniform(state) * n_tgt), n_tgt - 1)
+        pl = mir_list[min(int(uniform(state) * n_mir), n_mir - 1)]
+        u1, u2, u3 = uniform(state), uniform(state), uniform(state)
+        kind = tgt_kind[t]
+        if kind != 0 and kind != 1:
+            continue                                   # meshes (receivers) are not served through mirrors
+        qx, qy, qz = mir_point[pl, 0], mir_point[pl, 1], mir_point[pl, 2]
+        mx, my, mz = mir_normal[pl, 0], mir_normal[pl, 1], mir_normal[pl, 2]
+        sv = (vx - qx) * mx + (vy - qy) * my + (vz - qz) * mz
+        if sv == 0.0:
+            continue
+        ix, iy, iz = vx - 2.0 * sv * mx, vy - 2.0 * sv * my, vz - 2.0 * sv * mz      # v's image across P
+        ex, ey, ez = ix - tgt_center[t, 0], iy - tgt_center[t, 1], iz - tgt_center[t, 2]
+        if ex * ex + ey * ey + ez * ez < tgt_near2[t]:
+            continue                                   # too close (unfolded): the crossing is counted
+        s = tgt_ref[t]
+        snx, sny, snz = sens_normal[s, 0], sens_normal[s, 1], sens_normal[s, 2]
+        if kind == 0:
+            tb, bb = frame(snx, sny, snz)
+            r = sens_radius[s] * math.sqrt(u1)
+            c, sn = r * math.cos(2.0 * math.pi * u2), r * math.sin(2.0 * math.pi * u2)
+            px = sens_center[s, 0] + c * tb[0] + sn * bb[0]
+            py = sens_center[s, 1] + c * tb[1] + sn * bb[1]
+            pz = sens_center[s, 2] + c * tb[2] + sn * bb[2]
+        else:
+            cq = sens_corners[s]
+            a0 = _quad_half_area(cq, 1, 2)
+            a1 = _quad_half_area(cq, 2, 3)
+            su = math.sqrt(u1)
+            b0, b1 = 1.0 - su, u2 * su
+            b2 = 1.0 - b0 - b1
+            k1, k2 = (1, 2) if u3 * (a0 + a1) < a0 else (2, 3)
+            px = b0 * cq[0, 0] + b1 * cq[k1, 0] + b2 * cq[k2, 0]
+            py = b0 * cq[0, 1] + b1 * cq[k1, 1] + b2 * cq[k2, 1]
+            pz = b0 * cq[0, 2] + b1 * cq[k1, 2] + b2 * cq[k2, 2]
+        sx = (px - qx) * mx + (py - qy) * my + (pz - qz) * mz
+        if sx * sv <= 0.0:
+            continue                                   # x and v on opposite sides of P: no reflection joins them
+        if mir_one_sided[pl] != 0 and sv < 0.0:
+            continue                                   # behind a one-sided mirror
+        # where the reflection would be, and the second leg's direction: reject without rays when they fail
+        f = sv / (sv - (-sx))                          # fraction of the way from v to x' where P is crossed
+        rx, ry, rz = vx + f * (px - 2.0 * sx * mx - vx), vy + f * (py - 2.0 * sx * my - vy), vz + f * (pz - 2.0 * sx * mz - vz)
+        if not (mir_box[pl, 0, 0] <= rx <= mir_box[pl, 1, 0] and mir_box[pl, 0, 1] <= ry <= mir_box[pl, 1, 1]
+                and mir_box[pl, 0, 2] <= rz <= mir_box[pl, 1, 2]):
+            continue                                   # misses the mirror's bounds
+        if (px - rx) * snx + (py - ry) * sny + (pz - rz) * snz >= 0.0:
+            continue                                   # would reach the sensor from behind
+        # first leg: v towards x' (x's image), unfolded length L
+        jx, jy, jz = px - 2.0 * sx * mx, py - 2.0 * sx * my, pz - 2.0 * sx * mz
+        dx, dy, dz = jx - vx, jy - vy, jz - vz
+        L2 = dx * dx + dy * dy + dz * dz
+        if not L2 > 0.0:
+            continue
+        L = math.sqrt(L2)
+        dx, dy, dz = dx / L, dy / L, dz / L
+        cos_v = dx * nx + dy * ny + dz * nz
+        if mode == 1 and cos_v <= 0.0:                 # V_LAMBERT: emits into its front only
+            continue
+        side = 0.0 if mode == 0 else (1.0 if cos_v > 0.0 else -1.0)
+        eps = offset_rel * vmag
+        store_f32(rh + ORG, vx + side * eps * nx)
+        store_f32(rh + ORG + 4, vy + side * eps * ny)
+        store_f32(rh + ORG + 8, vz + side * eps * nz)
+        store_f32(rh + TNEAR, 0.0)
+        store_f32(rh + DIR, dx)
+        store_f32(rh + DIR + 4, dy)
+        store_f32(rh + DIR + 8, dz)
+        store_f32(rh + DIR + 12, 0.0)
+        store_f32(rh + TFAR, L)
+        store_u32(rh + MASK, 0xFFFFFFFF)
+        store_u32(rh + GEOM_ID, INVALID_ID)
+        store_i64(scratch + CAND_COUNT, 0)
+        call_ptr3(intersect_fn, scene, rh, args)
+        counters[4] += 1
+        nee_stats[stat0 + pl, 0] += 1
+        gid = load_u32(rh + GEOM_ID)
+        if gid == INVALID_ID:
+            continue
+        tri = load_u32(rh + PRIM_ID) + geom_offset[gid]
+        if tri_plane[tri] != pl and cop_start[tri + 1] == cop_start[tri]:
+            continue
+        bu, bv = load_f32(rh + HIT_U), load_f32(rh + HIT_V)
+        b0 = 1.0 - bu - bv
+        hx = b0 * tri_verts[tri, 0, 0] + bu * tri_verts[tri, 1, 0] + bv * tri_verts[tri, 2, 0]
+        hy = b0 * tri_verts[tri, 0, 1] + bu * tri_verts[tri, 1, 1] + bv * tri_verts[tri, 2, 1]
+        hz = b0 * tri_verts[tri, 0, 2] + bu * tri_verts[tri, 1, 2] + bv * tri_verts[tri, 2, 2]
+        if cop_start[tri + 1] > cop_start[tri]:
+            tri = _pick_coplanar(tri, hx, hy, hz, dx, dy, dz, cop_start, cop_list, cop_box, cop_free,
+                                 tri_verts, tri_normal, tri_two_sided, state)
+        if tri_plane[tri] != pl:
+            continue                                   # something else first: no path through P here
+        tnx, tny, tnz = tri_normal[tri, 0], tri_normal[tri, 1], tri_normal[tri, 2]
+        if dx * tnx + dy * tny + dz * tnz > 0.0:
+            mm = tri_mat[tri, 1]
+            tnx, tny, tnz = -tnx, -tny, -tnz
+        else:
+            mm = tri_mat[tri, 0]
+        if not math.isinf(mat_phong[mm]):
+            continue                                   # only perfect mirrors (the planes are built so)
+        # second leg: from the mirror point to x, which must be crossed from the sensor's front
+        fx, fy, fz = px - hx, py - hy, pz - hz
+        d2 = math.sqrt(fx * fx + fy * fy + fz * fz)
+        if not d2 > 0.0:
+            continue
+        fx, fy, fz = fx / d2, fy / d2, fz / d2
+        cos_x = fx * snx + fy * sny + fz * snz
+        if cos_x >= 0.0:
+            continue
+        any_light = False
+        for b in range(n_bands):
+            f = mat_prob[mm, 1, b]                     # SPECULAR_R of the mirror's side
+            if mode == 0:
+                f *= INV_4PI
+            elif mode == 1:
+                f *= cos_v / math.pi
+            else:
+                f *= mat_prob[m, 0 if cos_v > 0.0 else 2, b] * abs(cos_v) / math.pi
+            contrib[b] = w[b] * f * scale * tgt_area[t] * abs(cos_x) / L2
+            any_light = any_light or contrib[b] > 0.0
+        if not any_light:
+            continue
+        hmag = max(_magnitude(tri_verts[tri]), abs(hx), abs(hy), abs(hz))
+        pmag = max(abs(px), abs(py), abs(pz))
+        eps2 = offset_rel * (hmag + vmag)
+        tfar = d2 - offset_rel * (hmag + pmag) * 2.0
+        if tfar <= 0.0:
+            continue
+        counters[4] += 1
+        if not visible(occluded_fn, scene, scratch, hx + eps2 * tnx, hy + eps2 * tny, hz + eps2 * tnz,
+                       fx, fy, fz, tfar):
+            continue
+        nee_stats[stat0 + pl, 1] += 1
+        out_k[n_out] = tgt_row[t]
+        for b in range(n_bands):
+            out_w[n_out, b] = contrib[b]
+            nee_stats[stat0 + pl, 2] += contrib[b]
+        n_out += 1
+    return n_out
+
+
+@njit(inline="always", cache=True)
+def _quad_half_area(c, j, k):
+    ax, ay, az = c[j, 0] - c[0, 0], c[j, 1] - c[0, 1], c[j, 2] - c[0, 2]
+    bx, by, bz = c[k, 0] - c[0, 0], c[k, 1] - c[0, 1], c[k, 2] - c[0, 2]
+    cx, cy, cz = ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx
+    return 0.5 * math.sqrt(cx * cx + cy * cy + cz * cz)
+
+
+@njit(inline="always", cache=True)
+def _image_counted(t, wx, wy, wz, pl, mir_point, mir_normal, tgt_center, tgt_near2):
+    """Is a crossing of target t counted on a segment that leaves mirror plane ``pl`` after a photon came
+    from the next-event vertex w?  Only when w's image across the plane was too near t (as in
+    :func:`_image_event`)."""
+    sv = (wx - mir_point[pl, 0]) * mir_normal[pl, 0] + (wy - mir_point[pl, 1]) * mir_normal[pl, 1] \
+        + (wz - mir_point[pl, 2]) * mir_normal[pl, 2]
+    ix = wx - 2.0 * sv * mir_normal[pl, 0]
+    iy = wy - 2.0 * sv * mir_normal[pl, 1]
+    iz = wz - 2.0 * sv * mir_normal[pl, 2]
+    ex, ey, ez = ix - tgt_center[t, 0], iy - tgt_center[t, 1], iz - tgt_center[t, 2]
+    return ex * ex + ey * ey + ez * ez < tgt_near2[t]
+
+
 @njit(inline="always", cache=True)
 def _magnitude(v):
     """Largest |coordinate| of the three vertices v (3, 3): the scale of a triangle's float32 round-off."""
@@ -259,6 +451,7 @@ def trace_chunk(scene, intersect_fn, scratch, seed, first, count,
                 occluded_fn, nee_sensors, nee_receivers, tgt_kind, tgt_row, tgt_abs_row, tgt_ref, tgt_first,
                 tgt_count, tgt_area, tgt_center, tgt_near2, nee_tri, nee_cdf, sensor_target, receiver_target,
                 tri_verts, mat_nee, emit_nee, picks, cop_start, cop_list, cop_box, cop_free, tri_two_sided,
+                img_picks, tri_plane, mir_point, mir_normal, mir_list, mir_on, mir_box, mir_one_sided,
                 tally, tally_sq, counters, nee_stats):
     """Trace photons ``first .. first+count-1``; add what they do to the output arrays.
 
@@ -307,8 +500,14 @@ def trace_chunk(scene, intersect_fn, scratch, seed, first, count,
     cop_free : (T, 2, 3) float64, a box where none of the triangle's candidates reaches
         (:func:`lpy_light.geometry.partner_free_boxes`): hits inside it skip the tests.
     tri_two_sided : (T,) uint8, whether each triangle is seen from both sides.
-    nee_stats : (M + E, 3) float64, shadow rays cast, unblocked, and the weight
-        they deposit, per material then per emitter element.
+    img_picks : int, next events through a mirror per next-event vertex (0: none; :func:`_image_event`).
+    tri_plane (T,) int32 : each triangle's mirror plane or -1; mir_point, mir_normal (P, 3) : a point and
+        the unit normal of each plane; mir_list : int32, the planes in use; mir_on (P,) uint8, the same as flags;
+        mir_box (P, 2, 3) each plane's triangles' bounds (slightly widened); mir_one_sided (P,) uint8.
+        A sensor crossing right after a perfect-mirror reflection on a plane in use, by a photon that
+        came there from a next-event vertex, is then covered by the image events and not counted.
+    nee_stats : (M + E + P, 3) float64, shadow rays cast, unblocked, and the weight
+        they deposit, per material, per emitter element, then per mirror plane (image events).
     tally (K + M + 4, B), tally_sq (K + M + 4, B, B) : float64, expected hits and
         sums of products (band by band) of per-photon contributions: rows [0, S) sensor crossings, [S, S+R)
         receiver incident, [S+R, K) receiver absorbed, then fates from row K:
@@ -335,6 +534,8 @@ def trace_chunk(scene, intersect_fn, scratch, seed, first, count,
     rh = scratch + RAYHIT
     args = scratch + ARGS
     cand_count = scratch + CAND_COUNT
+    img_on = img_picks > 0 and nee_sensors and n_tgt > 0 and mir_list.shape[0] > 0
+    stat_planes = n_mat + emit_nee.shape[0]
 
     for i in range(count):
         seed_stream(state, seed, first + i)
@@ -345,6 +546,8 @@ def trace_chunk(scene, intersect_fn, scratch, seed, first, count,
         depth = 0
         after_diffuse = False   # does the current segment start at a next-event vertex?
         vx0, vy0, vz0 = ox, oy, oz   # that vertex
+        seg_plane = -1          # the current segment leaves this mirror plane, reflected, after a next-event vertex
+        wx, wy, wz = ox, oy, oz  # that next-event vertex
         if n_tgt > 0 and emit_nee[e] != 0:
             n_out = next_event(ox, oy, oz, enx, eny, enz, emode, 0, n_mat + e, w, state, scene, occluded_fn, scratch,
                                offset_rel, tgt_kind, tgt_row, tgt_abs_row, tgt_ref, tgt_first, tgt_count, tgt_area,
@@ -353,6 +556,16 @@ def trace_chunk(scene, intersect_fn, scratch, seed, first, count,
                                picks, oscale)
             for a in range(n_out):
                 nh = _record(out_k[a], out_w[a], hit_k, hit_w, nh, tally, tally_sq, fate0, counters)
+            if img_on and max_depth > 0:
+                n_out = _image_event(ox, oy, oz, enx, eny, enz, emode, 0, w, state, scene, intersect_fn, occluded_fn,
+                                     scratch, offset_rel, oscale, tgt_kind, tgt_row, tgt_ref, tgt_area, tgt_center,
+                                     tgt_near2, sens_center, sens_normal, sens_radius, sens_corners, geom_offset,
+                                     tri_verts, tri_normal, tri_mat, tri_two_sided, mat_prob, mat_phong, cop_start,
+                                     cop_list, cop_box, cop_free, tri_plane, mir_point, mir_normal, mir_list,
+                                     mir_box, mir_one_sided, img_picks, contrib, out_k, out_w, counters, nee_stats,
+                                     stat_planes)
+                for a in range(n_out):
+                    nh = _record(out_k[a], out_w[a], hit_k, hit_w, nh, tally, tally_sq, fate0, counters)
             after_diffuse = True
         while True:
             skip_sensors = after_diffuse and nee_sensors
@@ -399,9 +612,13 @@ def trace_chunk(scene, intersect_fn, scratch, seed, first, count,
                       + (sens_center[s, 2] - oz) * snz) / den
                 if ts <= 0.0 or ts >= t:
                     continue
-                if _counted(skip_sensors, sensor_target[s] if skip_sensors else -1, vx0, vy0, vz0, tgt_center,
-                            tgt_near2) and _inside(s, ox + ts * dx, oy + ts * dy, oz + ts * dz,
-                                                   sens_kind, sens_center, sens_radius, sens_corners, sens_normal):
+                counted = _counted(skip_sensors, sensor_target[s] if skip_sensors else -1, vx0, vy0, vz0, tgt_center,
+                                   tgt_near2)
+                if counted and seg_plane >= 0 and sensor_target[s] >= 0:     # covered by image events?
+                    counted = _image_counted(sensor_target[s], wx, wy, wz, seg_plane, mir_point, mir_normal,
+                                             tgt_center, tgt_near2)
+                if counted and _inside(s, ox + ts * dx, oy + ts * dy, oz + ts * dz,
+                                       sens_kind, sens_center, sens_radius, sens_corners, sens_normal):
                     nh = _record(s, w, hit_k, hit_w, nh, tally, tally_sq, fate0, counters)
 
             if gid == INVALID_ID:
@@ -458,6 +675,17 @@ def trace_chunk(scene, intersect_fn, scratch, seed, first, count,
                                    nee_stats, picks, pscale + oscale)
                 for a in range(n_out):
                     nh = _record(out_k[a], out_w[a], hit_k, hit_w, nh, tally, tally_sq, fate0, counters)
+                if img_on and depth + 1 < max_depth:    # and through a mirror (if not cut at that mirror)
+                    n_out = _image_event(px, py, pz, nx, ny, nz, V_SURFACE, m, w, state, scene, intersect_fn,
+                                         occluded_fn, scratch, offset_rel, pscale + oscale, tgt_kind, tgt_row,
+                                         tgt_ref, tgt_area, tgt_center, tgt_near2, sens_center, sens_normal,
+                                         sens_radius, sens_corners, geom_offset, tri_verts, tri_normal, tri_mat,
+                                         tri_two_sided, mat_prob, mat_phong, cop_start, cop_list, cop_box,
+                                         cop_free, tri_plane, mir_point, mir_normal, mir_list, mir_box,
+                                         mir_one_sided, img_picks, contrib, out_k, out_w, counters, nee_stats,
+                                         stat_planes)
+                    for a in range(n_out):
+                        nh = _record(out_k[a], out_w[a], hit_k, hit_w, nh, tally, tally_sq, fate0, counters)
 
             # one event, drawn with probabilities q shared by the bands; weights carry the rest
             u = uniform(state)
@@ -475,6 +703,12 @@ def trace_chunk(scene, intersect_fn, scratch, seed, first, count,
                 nh = _record(fate0 + m, w, hit_k, hit_w, nh, tally, tally_sq, fate0, counters)
                 break
             depth += 1
+            pl = tri_plane[tri]
+            if img_on and ev == SPECULAR_R and after_diffuse and pl >= 0 and mir_on[pl] != 0 and math.isinf(mat_phong[m]):
+                seg_plane = pl                      # a mirror right after a next-event vertex (vx0)
+                wx, wy, wz = vx0, vy0, vz0
+            else:
+                seg_plane = -1
             after_diffuse = n_tgt > 0 and mat_nee[m] != 0 and (ev == DIFFUSE_R or ev == DIFFUSE_T)
             vx0, vy0, vz0 = px, py, pz
             u1, u2 = uniform(state), uniform(state)

@@ -255,3 +255,38 @@ def partner_free_boxes(tris: np.ndarray, start: np.ndarray, partners: np.ndarray
             else:
                 b_lo[k] = value
     return box
+
+
+def mirror_planes(tris: np.ndarray, source: np.ndarray, specular: np.ndarray, rel_tol: float = 1e-9):
+    """Planar surfaces that can reflect specularly, for next events through a mirror (the image method).
+
+    ``tris`` (T, 3, 3), ``source`` (T,) the surface each triangle comes from, ``specular`` (T,) bool: does
+    the triangle reflect specularly (perfect mirror) on a side it is seen from.  A surface is a plane when
+    all its triangles share one (within ``rel_tol`` of the coordinates' magnitude).  Returns
+    ``tri_plane`` (T,) int32 (plane index or -1), ``point`` (P, 3) and unit ``normal`` (P, 3) (the
+    first triangle's normal orientation).
+    """
+    tri_plane = np.full(len(tris), -1, np.int32)
+    points, normals = [], []
+    if len(tris) == 0:
+        return tri_plane, np.zeros((0, 3)), np.zeros((0, 3))
+    n = triangle_normals(tris)
+    scale = max(float(np.abs(tris).max()), 1e-300)
+    order = np.argsort(source, kind="stable")
+    src = np.asarray(source)[order]
+    bounds = np.flatnonzero(np.diff(src)) + 1
+    for group in np.split(order, bounds):
+        if not specular[group].any():
+            continue
+        n0 = n[group[0]]
+        if not np.all(np.isfinite(n0)) or np.linalg.norm(n0) == 0:
+            continue
+        p0 = tris[group[0], 0]
+        dist = np.abs((tris[group] - p0) @ n0)
+        parallel = np.abs(np.abs(n[group] @ n0) - 1.0)
+        if dist.max() > rel_tol * scale or parallel.max() > 1e-9:
+            continue                    # not flat: no image
+        tri_plane[group] = len(points)
+        points.append(p0)
+        normals.append(n0)
+    return tri_plane, np.array(points, float).reshape(-1, 3), np.array(normals, float).reshape(-1, 3)

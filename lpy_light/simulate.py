@@ -20,8 +20,8 @@ from .errors import InputError, ResourceError
 from .kernel import embree
 from .kernel.nee import build_targets
 from .kernel.trace import N_COUNTERS, trace_chunk
-from .materials import sampling_tables
-from .geometry import coplanar_partners, partner_free_boxes, triangle_normals
+from .materials import SPECULAR_R, sampling_tables
+from .geometry import coplanar_partners, mirror_planes, partner_free_boxes, triangle_normals
 
 CHUNK = 1 << 15
 ESTIMATORS = ("weighted", "analog", "nee")
@@ -115,7 +115,7 @@ class Result:
     n_receivers: int
     estimator: str = "weighted"
     materials: list = field(default_factory=list)   # names of the fate rows' materials
-    nee_stats: np.ndarray | None = None   # (M + E, 3) shadow rays cast, unblocked, weight deposited
+    nee_stats: np.ndarray | None = None   # (M + E + P, 3) rays cast, paths found, weight deposited (materials, lamp elements, mirror planes)
     partial: bool = False
     interrupted: bool = False     # stopped by KeyboardInterrupt (Ctrl-C), not by ``stop()``
     extra: dict = field(default_factory=dict)
@@ -210,6 +210,7 @@ class KernelScene:
         self.nee_sensors = self.nee_receivers = estimator == "nee"
         self.nee_picks = 1          # targets per next event, drawn at random (0: all of them)
         self.nee_receiver_mask = None   # (R,) bool: receivers that are next-event targets (None: all)
+        self.nee_images = 1         # next events through a perfect mirror per vertex (sensors; 0: none)
         tris = chamber.triangles
         area = 0.5 * np.linalg.norm(np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0]), axis=1)
         keep = np.isfinite(tris).all(axis=(1, 2)) & (area > 0)
@@ -232,6 +233,21 @@ class KernelScene:
             self._chamber_cop = (np.zeros(len(order) + 1, np.int64), np.zeros(0, np.int32))
         self._cop_pad = 1e-5 * max(float(np.abs(tris).max()) if len(tris) else 1.0, 1e-30)
         self._chamber_free = partner_free_boxes(tris[order], *self._chamber_cop, self._cop_pad)
+        # planar perfect mirrors, for next events through one specular reflection (image method)
+        spec = np.array([m.events[SPECULAR_R].max() > 0 for m in chamber.materials] + [False], bool)
+        mats = chamber.tri_material[order]
+        specular = (spec[mats[:, 0]] | (chamber.tri_two_sided[order] & spec[mats[:, 1]])) \
+            if chamber.physics.specular == "mirror" and len(order) else np.zeros(len(order), bool)
+        self._chamber_plane, self.mir_point, self.mir_normal = mirror_planes(
+            tris[order], np.asarray(chamber.tri_source)[order], specular)
+        self.mir_on = np.ones(len(self.mir_point), np.uint8)
+        P, tv, tp = len(self.mir_point), self._chamber_verts, self._chamber_plane
+        self.mir_box = np.zeros((P, 2, 3))
+        self.mir_one_sided = np.ones(P, np.uint8)
+        for k in range(P):
+            v = tv[tp == k].reshape(-1, 3)
+            self.mir_box[k] = [v.min(axis=0) - self._cop_pad, v.max(axis=0) + self._cop_pad]
+            self.mir_one_sided[k] = 0 if self._chamber_two_sided[tp == k].any() else 1
         sensors = chamber.sensors
         self.scene = embree.EmbreeScene(one_sided=tris[one], two_sided=tris[two],
                                         sensors=sensors.bounding_triangles() if len(sensors) else None)
@@ -259,6 +275,7 @@ class KernelScene:
         self.tri_normal = np.ascontiguousarray(np.concatenate([self._chamber_normal, normal]))
         self.tri_mat = np.ascontiguousarray(np.concatenate([self._chamber_mat, mat]).astype(np.int32))
         self.tri_receiver = np.ascontiguousarray(np.concatenate([self._chamber_receiver, receiver]).astype(np.int32))
+        self.tri_plane = np.ascontiguousarray(np.concatenate([self._chamber_plane, np.full(len(verts), -1, np.int32)]))
         start, partners = self._chamber_cop
         self.cop_start = np.ascontiguousarray(np.concatenate([start, np.full(len(verts), start[-1], np.int64)]))
         self.cop_list = np.ascontiguousarray(partners if len(partners) else np.zeros(1, np.int32))
@@ -309,6 +326,7 @@ class KernelScene:
             return {}
         self.mat_nee[:] = 1
         self.emit_nee[:] = 1
+        self.mir_on[:] = 1
         pilot = run(self, photons, seed=seed, threads=threads)
         if pilot.interrupted:
             raise KeyboardInterrupt      # Ctrl-C during the pilot: stop, do not trace on with half a pilot
@@ -325,9 +343,12 @@ class KernelScene:
                 break
             on[i] = False
             lost += weight[i]
+        E = len(self.emit_nee)
         self.mat_nee = np.ascontiguousarray(on[:M], dtype=np.uint8)
-        self.emit_nee = np.ascontiguousarray(on[M:], dtype=np.uint8)
-        names = [m.name for m in self.materials] + ["lamp element %d" % e for e in range(len(self.emit_nee))]
+        self.emit_nee = np.ascontiguousarray(on[M:M + E], dtype=np.uint8)
+        self.mir_on = np.ascontiguousarray(on[M + E:], dtype=np.uint8)
+        names = ([m.name for m in self.materials] + ["lamp element %d" % e for e in range(E)]
+                 + ["mirror plane %d" % k for k in range(len(self.mir_on))])
         report = {names[i]: (float(cast[i] / total_c), float(weight[i] / total_w)) for i in range(len(stats))
                   if cast[i] > 0}
         report["off"] = [names[i] for i in range(len(stats)) if not on[i] and cast[i] > 0]
@@ -369,7 +390,8 @@ class KernelScene:
     def trace(self, seed: int, first: int, count: int):
         """Trace one chunk; returns (tally, tally_sq, counters, nee_stats)."""
         out = (np.zeros((self.n_rows, self.n_bands)), np.zeros((self.n_rows, self.n_bands, self.n_bands)),
-               np.zeros(N_COUNTERS, np.int64), np.zeros((len(self.materials) + len(self.emit_nee), 3)))
+               np.zeros(N_COUNTERS, np.int64),
+               np.zeros((len(self.materials) + len(self.emit_nee) + len(self.mir_point), 3)))
         scratch = embree.new_scratch()
         phys = self.chamber.physics
         trace_chunk(self.scene.handle, self.intersect, scratch.ctypes.data, seed, first, count,
@@ -379,6 +401,8 @@ class KernelScene:
                     self.occluded, self.nee_sensors, self.nee_receivers, *self.targets, self.tri_verts,
                     self.mat_nee, self.emit_nee, self.nee_picks, self.cop_start, self.cop_list, self.cop_box,
                     self.cop_free, self.tri_two_sided,
+                    int(self.nee_images) if self.nee_sensors else 0, self.tri_plane, self.mir_point, self.mir_normal,
+                    np.flatnonzero(self.mir_on).astype(np.int32), self.mir_on, self.mir_box, self.mir_one_sided,
                     *out)
         return out
 
@@ -426,7 +450,7 @@ def run(kscene: KernelScene, photons: int, seed: int = 1, threads: int | None = 
         raise InputError("threads must be in 1..%d, got %r" % (MAX_THREADS, threads))
     n_chunks = math.ceil(photons / CHUNK)
     threads = min(threads, n_chunks)      # more threads than chunks would only wait
-    n_stats = len(kscene.materials) + len(kscene.emit_nee)
+    n_stats = len(kscene.materials) + len(kscene.emit_nee) + len(getattr(kscene, "mir_point", ()))
     check_memory(kscene.n_rows, kscene.n_bands, threads, n_stats=n_stats)
     acc = [np.zeros((kscene.n_rows, kscene.n_bands)), np.zeros((kscene.n_rows, kscene.n_bands, kscene.n_bands)),
            np.zeros(N_COUNTERS, np.int64), np.zeros((n_stats, 3))]

@@ -15,9 +15,10 @@ def _rows(discs):
     return [c + (r,) + n for c, n, r in discs]
 
 
-def _run(chamber, estimator, photons, seed, picks=0):
+def _run(chamber, estimator, photons, seed, picks=0, images=0):
     ks = simulate.KernelScene(chamber, estimator)
     ks.nee_picks = picks
+    ks.nee_images = images
     return simulate.run(ks, photons, seed=seed, threads=2)
 
 
@@ -56,10 +57,11 @@ def room(tmp_path_factory):
     return chamber, _run(chamber, "analog", 600_000, seed=21)
 
 
-@pytest.mark.parametrize("picks, photons", [(0, 40_000), (1, 300_000)])
-def test_room_matches_analog_counting(room, picks, photons):
+@pytest.mark.parametrize("picks, images, photons", [(0, 0, 40_000), (1, 0, 300_000), (1, 1, 300_000),
+                                                     (0, 2, 40_000)])
+def test_room_matches_analog_counting(room, picks, images, photons):
     chamber, analog = room
-    nee = _run(chamber, "nee", photons, seed=22, picks=picks)
+    nee = _run(chamber, "nee", photons, seed=22, picks=picks, images=images)
     a, sa = analog.sensors()
     b, sb = nee.sensors()
     scale = analog.photons / nee.photons
@@ -138,3 +140,32 @@ def test_shadow_rays_reach_thin_sliver_triangles(tmp_path):
     y, sy = counted.receivers_incident()
     x, sx, y, sy = x[0, 0] / 400_000, sx[0, 0] / 400_000, y[0, 0] / 3_000_000, sy[0, 0] / 3_000_000
     assert abs(x - y) < 4 * np.hypot(sx, sy), (x, sx, y, sy)
+
+
+def test_image_events_light_mirror_lit_sensors(room):
+    """Next events through the mirror: the sensor facing the mirror (5) gets most of its light from it;
+    image events cut its σ (same photons, same seed) while the sensor under the lamp barely changes."""
+    chamber, analog = room
+    ks = simulate.KernelScene(chamber, "nee")
+    assert len(ks.mir_point) == 7         # six grey walls (specular part 0.3) and the mirror
+    plain = _run(chamber, "nee", 100_000, seed=24, picks=1, images=0)
+    images = _run(chamber, "nee", 100_000, seed=24, picks=1, images=1)
+    (p0, s0), (p1, s1) = plain.sensors(), images.sensors()
+    rel0, rel1 = s0[:, 0] / p0[:, 0], s1[:, 0] / p1[:, 0]
+    assert rel1[5] < 0.7 * rel0[5], (rel0, rel1)
+    a, sa = analog.sensors()
+    k = analog.photons / images.photons
+    assert np.all(np.abs(a[:, 0] - k * p1[:, 0]) < 4 * np.hypot(sa[:, 0], k * s1[:, 0]))
+
+
+def test_mirror_planes_are_flat_specular_surfaces():
+    from lpy_light.geometry import cylinder, mirror_planes, triangulate_polygon
+
+    square = triangulate_polygon(np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], float))
+    tube = cylinder(np.array([0, 0, 0.0]), np.array([0, 0, 1.0]), 0.1)
+    tris = np.concatenate([square, tube, square + [0, 0, 2]])
+    source = np.array([0] * len(square) + [1] * len(tube) + [2] * len(square))
+    specular = np.array([True] * (len(square) + len(tube)) + [False] * len(square))
+    tri_plane, point, normal = mirror_planes(tris, source, specular)
+    assert len(point) == 1 and np.allclose(np.abs(normal[0]), [0, 0, 1])
+    assert np.all(tri_plane[:len(square)] == 0) and np.all(tri_plane[len(square):] == -1)
