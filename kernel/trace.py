@@ -185,15 +185,16 @@ def _image_event(vx, vy, vz, nx, ny, nz, mode, m, w, state, scene, intersect_fn,
                  vscale, tgt_kind, tgt_row, tgt_ref, tgt_area, tgt_center, tgt_near2, sens_center, sens_normal,
                  sens_radius, sens_corners, geom_offset, tri_verts, tri_normal, tri_mat, tri_two_sided, mat_prob,
                  mat_phong, cop_start, cop_list, cop_box, cop_free, tri_plane, mir_point, mir_normal, mir_list,
-                 mir_box, mir_one_sided, picks, contrib, out_k, out_w, counters, nee_stats, stat0):
+                 mir_cdf, mir_inv_p, mir_box, mir_one_sided, picks, contrib, out_k, out_w, counters, nee_stats,
+                 stat0):
     """Next events through one perfect mirror: the expected light that the segment leaving v brings to a
     transparent sensor after one specular reflection on a mirror plane (the image method).
 
     For ``picks`` draws: a target t (uniform over the targets; only sensors are served) and a mirror plane P
-    (uniform over ``mir_list``); a point x on t, its image x' across P; the ray v → x' must first meet a
+    (``mir_list[k]``, k drawn from the cumulative ``mir_cdf``; its weight ``mir_inv_p[k]`` = 1 / p_k); a point x on t, its image x' across P; the ray v → x' must first meet a
     triangle of P (after the coplanar pick, as a photon would), from a side whose material is a perfect
     mirror, and the leg from there to x must be free.  Deposit
-    w · f_v(ω) · P_spec,b · A_t |cos θ_x| / |x' − v|² · n_targets · n_planes / picks  (a mirror keeps solid angle).
+    w · f_v(ω) · P_spec,b · A_t |cos θ_x| / |x' − v|² · n_targets / (p_k · picks)  (a mirror keeps solid angle).
     A vertex whose image across P lies within the target's exclusion radius makes no such event: the
     crossing is counted instead (:func:`trace_chunk` applies the same test).  ``nee_stats[stat0 + P]``
     counts rays cast, paths found, weight deposited.  Returns the number of deposits in ``out_k``/``out_w``.
@@ -203,14 +204,15 @@ def _image_event(vx, vy, vz, nx, ny, nz, mode, m, w, state, scene, intersect_fn,
     n_mir = mir_list.shape[0]
     if n_tgt == 0 or n_mir == 0 or picks <= 0:
         return 0
-    scale = n_tgt * n_mir / picks
+    scale = n_tgt / picks
     vmag = max(abs(vx), abs(vy), abs(vz), vscale)
     rh = scratch + RAYHIT
     args = scratch + ARGS
     n_out = 0
     for _ in range(picks):
         t = min(int(uniform(state) * n_tgt), n_tgt - 1)
-        pl = mir_list[min(int(uniform(state) * n_mir), n_mir - 1)]
+        k = _binary_search(mir_cdf, uniform(state))     # a plane, by the pilot's weights (or uniformly)
+        pl = mir_list[k]
         u1, u2, u3 = uniform(state), uniform(state), uniform(state)
         kind = tgt_kind[t]
         if kind != 0 and kind != 1:
@@ -327,7 +329,7 @@ def _image_event(vx, vy, vz, nx, ny, nz, mode, m, w, state, scene, intersect_fn,
                 f *= cos_v / math.pi
             else:
                 f *= mat_prob[m, 0 if cos_v > 0.0 else 2, b] * abs(cos_v) / math.pi
-            contrib[b] = w[b] * f * scale * tgt_area[t] * abs(cos_x) / L2
+            contrib[b] = w[b] * f * scale * mir_inv_p[k] * tgt_area[t] * abs(cos_x) / L2
             any_light = any_light or contrib[b] > 0.0
         if not any_light:
             continue
@@ -451,8 +453,8 @@ def trace_chunk(scene, intersect_fn, scratch, seed, first, count,
                 occluded_fn, nee_sensors, nee_receivers, tgt_kind, tgt_row, tgt_abs_row, tgt_ref, tgt_first,
                 tgt_count, tgt_area, tgt_center, tgt_near2, nee_tri, nee_cdf, sensor_target, receiver_target,
                 tri_verts, mat_nee, emit_nee, picks, cop_start, cop_list, cop_box, cop_free, tri_two_sided,
-                img_picks, tri_plane, mir_point, mir_normal, mir_list, mir_on, mir_box, mir_one_sided,
-                tally, tally_sq, counters, nee_stats):
+                img_picks, tri_plane, mir_point, mir_normal, mir_list, mir_cdf, mir_inv_p, mir_on, mir_box,
+                mir_one_sided, tally, tally_sq, counters, nee_stats):
     """Trace photons ``first .. first+count-1``; add what they do to the output arrays.
 
     Parameters (T triangles, M materials, B bands, S sensors, E emitter elements,
@@ -502,7 +504,8 @@ def trace_chunk(scene, intersect_fn, scratch, seed, first, count,
     tri_two_sided : (T,) uint8, whether each triangle is seen from both sides.
     img_picks : int, next events through a mirror per next-event vertex (0: none; :func:`_image_event`).
     tri_plane (T,) int32 : each triangle's mirror plane or -1; mir_point, mir_normal (P, 3) : a point and
-        the unit normal of each plane; mir_list : int32, the planes in use; mir_on (P,) uint8, the same as flags;
+        the unit normal of each plane; mir_list : int32, the planes in use, drawn by the cumulative
+        probabilities mir_cdf with weights 1 / p = mir_inv_p; mir_on (P,) uint8, the planes in use as flags;
         mir_box (P, 2, 3) each plane's triangles' bounds (slightly widened); mir_one_sided (P,) uint8.
         A sensor crossing right after a perfect-mirror reflection on a plane in use, by a photon that
         came there from a next-event vertex, is then covered by the image events and not counted.
@@ -562,8 +565,8 @@ def trace_chunk(scene, intersect_fn, scratch, seed, first, count,
                                      tgt_near2, sens_center, sens_normal, sens_radius, sens_corners, geom_offset,
                                      tri_verts, tri_normal, tri_mat, tri_two_sided, mat_prob, mat_phong, cop_start,
                                      cop_list, cop_box, cop_free, tri_plane, mir_point, mir_normal, mir_list,
-                                     mir_box, mir_one_sided, img_picks, contrib, out_k, out_w, counters, nee_stats,
-                                     stat_planes)
+                                     mir_cdf, mir_inv_p, mir_box, mir_one_sided, img_picks, contrib, out_k, out_w,
+                                     counters, nee_stats, stat_planes)
                 for a in range(n_out):
                     nh = _record(out_k[a], out_w[a], hit_k, hit_w, nh, tally, tally_sq, fate0, counters)
             after_diffuse = True
@@ -681,9 +684,9 @@ def trace_chunk(scene, intersect_fn, scratch, seed, first, count,
                                          tgt_ref, tgt_area, tgt_center, tgt_near2, sens_center, sens_normal,
                                          sens_radius, sens_corners, geom_offset, tri_verts, tri_normal, tri_mat,
                                          tri_two_sided, mat_prob, mat_phong, cop_start, cop_list, cop_box,
-                                         cop_free, tri_plane, mir_point, mir_normal, mir_list, mir_box,
-                                         mir_one_sided, img_picks, contrib, out_k, out_w, counters, nee_stats,
-                                         stat_planes)
+                                         cop_free, tri_plane, mir_point, mir_normal, mir_list, mir_cdf,
+                                         mir_inv_p, mir_box, mir_one_sided, img_picks, contrib, out_k, out_w,
+                                         counters, nee_stats, stat_planes)
                     for a in range(n_out):
                         nh = _record(out_k[a], out_w[a], hit_k, hit_w, nh, tally, tally_sq, fate0, counters)
 

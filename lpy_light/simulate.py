@@ -241,6 +241,7 @@ class KernelScene:
         self._chamber_plane, self.mir_point, self.mir_normal = mirror_planes(
             tris[order], np.asarray(chamber.tri_source)[order], specular)
         self.mir_on = np.ones(len(self.mir_point), np.uint8)
+        self.mir_weight = np.ones(len(self.mir_point))    # how often each plane is drawn (set by the pilot)
         P, tv, tp = len(self.mir_point), self._chamber_verts, self._chamber_plane
         self.mir_box = np.zeros((P, 2, 3))
         self.mir_one_sided = np.ones(P, np.uint8)
@@ -327,6 +328,7 @@ class KernelScene:
         self.mat_nee[:] = 1
         self.emit_nee[:] = 1
         self.mir_on[:] = 1
+        self.mir_weight[:] = 1.0
         pilot = run(self, photons, seed=seed, threads=threads)
         if pilot.interrupted:
             raise KeyboardInterrupt      # Ctrl-C during the pilot: stop, do not trace on with half a pilot
@@ -347,6 +349,12 @@ class KernelScene:
         self.mat_nee = np.ascontiguousarray(on[:M], dtype=np.uint8)
         self.emit_nee = np.ascontiguousarray(on[M:M + E], dtype=np.uint8)
         self.mir_on = np.ascontiguousarray(on[M + E:], dtype=np.uint8)
+        # planes in use are then drawn in proportion to what they brought in the pilot, mixed with a
+        # uniform share so that none is starved (any positive probabilities keep the events unbiased)
+        w_planes = weight[M + E:]
+        if self.mir_on.any() and w_planes[self.mir_on > 0].sum() > 0:
+            mean = w_planes[self.mir_on > 0].mean()
+            self.mir_weight = np.where(self.mir_on > 0, w_planes + 0.25 * mean, 0.0)
         names = ([m.name for m in self.materials] + ["lamp element %d" % e for e in range(E)]
                  + ["mirror plane %d" % k for k in range(len(self.mir_on))])
         report = {names[i]: (float(cast[i] / total_c), float(weight[i] / total_w)) for i in range(len(stats))
@@ -387,6 +395,16 @@ class KernelScene:
             self._assemble(np.zeros((0, 3, 3)), np.zeros((0, 2), np.int32), np.zeros(0, np.int32))
         self.scene.set_organs(tris)
 
+    def _mirror_draw(self):
+        """(planes in use (int32), their cumulative draw probabilities, 1 / probability) for image events."""
+        on = np.flatnonzero(self.mir_on).astype(np.int32)
+        if len(on) == 0:
+            return on, np.ones(0), np.ones(0)
+        p = self.mir_weight[on] / self.mir_weight[on].sum()
+        cdf = np.cumsum(p)
+        cdf[-1] = 1.0 + 1e-12
+        return on, cdf, 1.0 / p
+
     def trace(self, seed: int, first: int, count: int):
         """Trace one chunk; returns (tally, tally_sq, counters, nee_stats)."""
         out = (np.zeros((self.n_rows, self.n_bands)), np.zeros((self.n_rows, self.n_bands, self.n_bands)),
@@ -402,7 +420,7 @@ class KernelScene:
                     self.mat_nee, self.emit_nee, self.nee_picks, self.cop_start, self.cop_list, self.cop_box,
                     self.cop_free, self.tri_two_sided,
                     int(self.nee_images) if self.nee_sensors else 0, self.tri_plane, self.mir_point, self.mir_normal,
-                    np.flatnonzero(self.mir_on).astype(np.int32), self.mir_on, self.mir_box, self.mir_one_sided,
+                    *self._mirror_draw(), self.mir_on, self.mir_box, self.mir_one_sided,
                     *out)
         return out
 
