@@ -154,6 +154,10 @@ def cmd_run(args) -> int:
         norm = units.from_spectrum(photons, std, chamber.sensors.area * chamber.metres_per_unit ** 2,
                                    chamber.spectrum, chamber.bands)
     extra, calibration, comparison = _after_run(args, chamber, result, norm, measured, ref, ref_band)
+    if args.estimator == "nee":
+        extra["next_events"] = {"picks": kscene.nee_picks, "images": kscene.nee_images,
+                                "mirror_planes": int(kscene.mir_on.sum()),
+                                "sources_off": [m.name for m, on in zip(kscene.materials, kscene.mat_nee) if not on]}
     if calibration is not None:
         norm = calibration.norm
     summary = write_run(args.out, chamber, result, norm, extra)
