@@ -91,7 +91,7 @@ def _tri_area(c, i, j, k):
     return 0.5 * math.sqrt(cx * cx + cy * cy + cz * cz)
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def next_event(vx, vy, vz, nx, ny, nz, mode, m, stat, w, state, scene, occluded_fn, scratch, offset_rel,
                tgt_kind, tgt_row, tgt_abs_row, tgt_ref, tgt_first, tgt_count, tgt_area, tgt_center, tgt_near2,
                sens_center, sens_normal, sens_radius, sens_corners,

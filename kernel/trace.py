@@ -180,17 +180,17 @@ def _pick_coplanar(tri, px, py, pz, dx, dy, dz, cop_start, cop_list, cop_box, co
     return chosen
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def _image_event(vx, vy, vz, nx, ny, nz, mode, m, w, state, scene, intersect_fn, occluded_fn, scratch, offset_rel,
                  vscale, tgt_kind, tgt_row, tgt_ref, tgt_area, tgt_center, tgt_near2, sens_center, sens_normal,
                  sens_radius, sens_corners, geom_offset, tri_verts, tri_normal, tri_mat, tri_two_sided, mat_prob,
                  mat_phong, cop_start, cop_list, cop_box, cop_free, tri_plane, mir_point, mir_normal, mir_list,
-                 mir_cdf, mir_inv_p, mir_box, mir_one_sided, picks, contrib, out_k, out_w, counters, nee_stats,
-                 stat0):
+                 mir_cdf, mir_inv_p, mir_box, mir_one_sided, n_draw, picks, contrib, out_k, out_w, counters,
+                 nee_stats, stat0):
     """Next events through one perfect mirror: the expected light that the segment leaving v brings to a
     transparent sensor after one specular reflection on a mirror plane (the image method).
 
-    For ``picks`` draws: a target t (uniform over the targets; only sensors are served) and a mirror plane P
+    For ``n_draw`` draws (a random whole number whose mean is ``picks``, see :func:`_n_images`): a target t (uniform over the targets; only sensors are served) and a mirror plane P
     (``mir_list[k]``, k drawn from the cumulative ``mir_cdf``; its weight ``mir_inv_p[k]`` = 1 / p_k); a point x on t, its image x' across P; the ray v → x' must first meet a
     triangle of P (after the coplanar pick, as a photon would), from a side whose material is a perfect
     mirror, and the leg from there to x must be free.  Deposit
@@ -202,14 +202,14 @@ def _image_event(vx, vy, vz, nx, ny, nz, mode, m, w, state, scene, intersect_fn,
     n_bands = w.shape[0]
     n_tgt = tgt_kind.shape[0]
     n_mir = mir_list.shape[0]
-    if n_tgt == 0 or n_mir == 0 or picks <= 0:
+    if n_tgt == 0 or n_mir == 0 or n_draw <= 0 or not picks > 0.0:
         return 0
     scale = n_tgt / picks
     vmag = max(abs(vx), abs(vy), abs(vz), vscale)
     rh = scratch + RAYHIT
     args = scratch + ARGS
     n_out = 0
-    for _ in range(picks):
+    for _ in range(n_draw):
         t = min(int(uniform(state) * n_tgt), n_tgt - 1)
         k = _binary_search(mir_cdf, uniform(state))     # a plane, by the pilot's weights (or uniformly)
         pl = mir_list[k]
@@ -350,6 +350,15 @@ def _image_event(vx, vy, vz, nx, ny, nz, mode, m, w, state, scene, intersect_fn,
             nee_stats[stat0 + pl, 2] += contrib[b]
         n_out += 1
     return n_out
+
+
+@njit(inline="always", cache=True)
+def _n_images(picks, state):
+    """How many image events at a vertex: int(picks), plus one with probability frac(picks)."""
+    n = int(picks)
+    if picks - n > 0.0 and uniform(state) < picks - n:
+        n += 1
+    return n
 
 
 @njit(inline="always", cache=True)
@@ -502,7 +511,8 @@ def trace_chunk(scene, intersect_fn, scratch, seed, first, count,
     cop_free : (T, 2, 3) float64, a box where none of the triangle's candidates reaches
         (:func:`lpy_light.geometry.partner_free_boxes`): hits inside it skip the tests.
     tri_two_sided : (T,) uint8, whether each triangle is seen from both sides.
-    img_picks : int, next events through a mirror per next-event vertex (0: none; :func:`_image_event`).
+    img_picks : float, next events through a mirror per next-event vertex, on average (0: none; fractional:
+        a random whole number with that mean; :func:`_image_event`).
     tri_plane (T,) int32 : each triangle's mirror plane or -1; mir_point, mir_normal (P, 3) : a point and
         the unit normal of each plane; mir_list : int32, the planes in use, drawn by the cumulative
         probabilities mir_cdf with weights 1 / p = mir_inv_p; mir_on (P,) uint8, the planes in use as flags;
@@ -537,7 +547,7 @@ def trace_chunk(scene, intersect_fn, scratch, seed, first, count,
     rh = scratch + RAYHIT
     args = scratch + ARGS
     cand_count = scratch + CAND_COUNT
-    img_on = img_picks > 0 and nee_sensors and n_tgt > 0 and mir_list.shape[0] > 0
+    img_on = img_picks > 0.0 and nee_sensors and n_tgt > 0 and mir_list.shape[0] > 0
     stat_planes = n_mat + emit_nee.shape[0]
 
     for i in range(count):
@@ -559,14 +569,15 @@ def trace_chunk(scene, intersect_fn, scratch, seed, first, count,
                                picks, oscale)
             for a in range(n_out):
                 nh = _record(out_k[a], out_w[a], hit_k, hit_w, nh, tally, tally_sq, fate0, counters)
-            if img_on and max_depth > 0:
+            n_img = _n_images(img_picks, state) if img_on and max_depth > 0 else 0
+            if n_img > 0:
                 n_out = _image_event(ox, oy, oz, enx, eny, enz, emode, 0, w, state, scene, intersect_fn, occluded_fn,
                                      scratch, offset_rel, oscale, tgt_kind, tgt_row, tgt_ref, tgt_area, tgt_center,
                                      tgt_near2, sens_center, sens_normal, sens_radius, sens_corners, geom_offset,
                                      tri_verts, tri_normal, tri_mat, tri_two_sided, mat_prob, mat_phong, cop_start,
                                      cop_list, cop_box, cop_free, tri_plane, mir_point, mir_normal, mir_list,
-                                     mir_cdf, mir_inv_p, mir_box, mir_one_sided, img_picks, contrib, out_k, out_w,
-                                     counters, nee_stats, stat_planes)
+                                     mir_cdf, mir_inv_p, mir_box, mir_one_sided, n_img, img_picks, contrib, out_k,
+                                     out_w, counters, nee_stats, stat_planes)
                 for a in range(n_out):
                     nh = _record(out_k[a], out_w[a], hit_k, hit_w, nh, tally, tally_sq, fate0, counters)
             after_diffuse = True
@@ -678,15 +689,17 @@ def trace_chunk(scene, intersect_fn, scratch, seed, first, count,
                                    nee_stats, picks, pscale + oscale)
                 for a in range(n_out):
                     nh = _record(out_k[a], out_w[a], hit_k, hit_w, nh, tally, tally_sq, fate0, counters)
-                if img_on and depth + 1 < max_depth:    # and through a mirror (if not cut at that mirror)
+                # and through a mirror (if not cut at that mirror); the call itself is not free: only if drawn
+                n_img = _n_images(img_picks, state) if img_on and depth + 1 < max_depth else 0
+                if n_img > 0:
                     n_out = _image_event(px, py, pz, nx, ny, nz, V_SURFACE, m, w, state, scene, intersect_fn,
                                          occluded_fn, scratch, offset_rel, pscale + oscale, tgt_kind, tgt_row,
                                          tgt_ref, tgt_area, tgt_center, tgt_near2, sens_center, sens_normal,
                                          sens_radius, sens_corners, geom_offset, tri_verts, tri_normal, tri_mat,
                                          tri_two_sided, mat_prob, mat_phong, cop_start, cop_list, cop_box,
                                          cop_free, tri_plane, mir_point, mir_normal, mir_list, mir_cdf,
-                                         mir_inv_p, mir_box, mir_one_sided, img_picks, contrib, out_k, out_w,
-                                         counters, nee_stats, stat_planes)
+                                         mir_inv_p, mir_box, mir_one_sided, n_img, img_picks, contrib, out_k,
+                                         out_w, counters, nee_stats, stat_planes)
                     for a in range(n_out):
                         nh = _record(out_k[a], out_w[a], hit_k, hit_w, nh, tally, tally_sq, fate0, counters)
 

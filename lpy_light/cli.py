@@ -80,9 +80,9 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--quiet", action="store_true", help="no progress lines")
     r.add_argument("--nee-picks", type=int, default=1, metavar="K",
                    help="with --estimator nee: targets per next event, drawn at random (default 1; 0 = all)")
-    r.add_argument("--nee-images", type=int, default=1, metavar="K",
-                   help="with --estimator nee: next events through a perfect mirror per vertex (default 1; 0 = "
-                        "none: light whose last bounce is specular is then counted)")
+    r.add_argument("--nee-images", type=float, default=0.25, metavar="K",
+                   help="with --estimator nee: next events through a perfect mirror per vertex, on average (default "
+                        "0.25; 0 = none: light whose last bounce is specular is then counted)")
     r.add_argument("--calibrate", metavar="FILE", default=None,
                    help="csv of measured sensors (x,y,z or sensor, and one column per band, µmol m-2 s-1): "
                         "ppfd scaled per band by least squares on them (overrides the scene's 'calibration')")
@@ -121,8 +121,8 @@ def cmd_run(args) -> int:
     if args.nee_picks < 0:
         raise InputError("--nee-picks must be >= 0")
     kscene.nee_picks = args.nee_picks
-    if args.nee_images < 0:
-        raise InputError("--nee-images must be >= 0")
+    if not 0 <= args.nee_images <= 64:
+        raise InputError("--nee-images must be in 0..64")
     kscene.nee_images = args.nee_images
     if args.estimator == "nee":
         kscene.prune_next_events(threads=args.threads)

@@ -210,7 +210,7 @@ class KernelScene:
         self.nee_sensors = self.nee_receivers = estimator == "nee"
         self.nee_picks = 1          # targets per next event, drawn at random (0: all of them)
         self.nee_receiver_mask = None   # (R,) bool: receivers that are next-event targets (None: all)
-        self.nee_images = 1         # next events through a perfect mirror per vertex (sensors; 0: none)
+        self.nee_images = 0.25      # next events through a perfect mirror per vertex, on average (sensors; 0: none)
         tris = chamber.triangles
         area = 0.5 * np.linalg.norm(np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0]), axis=1)
         keep = np.isfinite(tris).all(axis=(1, 2)) & (area > 0)
@@ -419,7 +419,7 @@ class KernelScene:
                     self.occluded, self.nee_sensors, self.nee_receivers, *self.targets, self.tri_verts,
                     self.mat_nee, self.emit_nee, self.nee_picks, self.cop_start, self.cop_list, self.cop_box,
                     self.cop_free, self.tri_two_sided,
-                    int(self.nee_images) if self.nee_sensors else 0, self.tri_plane, self.mir_point, self.mir_normal,
+                    float(self.nee_images) if self.nee_sensors else 0.0, self.tri_plane, self.mir_point, self.mir_normal,
                     *self._mirror_draw(), self.mir_on, self.mir_box, self.mir_one_sided,
                     *out)
         return out

@@ -58,7 +58,7 @@ def room(tmp_path_factory):
 
 
 @pytest.mark.parametrize("picks, images, photons", [(0, 0, 40_000), (1, 0, 300_000), (1, 1, 300_000),
-                                                     (0, 2, 40_000)])
+                                                     (0, 2, 40_000), (1, 0.25, 300_000)])
 def test_room_matches_analog_counting(room, picks, images, photons):
     chamber, analog = room
     nee = _run(chamber, "nee", photons, seed=22, picks=picks, images=images)
