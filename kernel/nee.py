@@ -91,6 +91,26 @@ def _tri_area(c, i, j, k):
     return 0.5 * math.sqrt(cx * cx + cy * cy + cz * cz)
 
 
+@njit(inline="always", cache=True)
+def sensor_point(kind, s, u1, u2, u3, sens_center, sens_normal, sens_radius, sens_corners):
+    """A point uniform on transparent sensor s (a disc, kind T_DISC, or a planar quad) from three uniforms."""
+    if kind == T_DISC:
+        tb, bb = frame(sens_normal[s, 0], sens_normal[s, 1], sens_normal[s, 2])
+        r = sens_radius[s] * math.sqrt(u1)
+        c, sn = r * math.cos(2.0 * math.pi * u2), r * math.sin(2.0 * math.pi * u2)
+        return (sens_center[s, 0] + c * tb[0] + sn * bb[0], sens_center[s, 1] + c * tb[1] + sn * bb[1],
+                sens_center[s, 2] + c * tb[2] + sn * bb[2])
+    cq = sens_corners[s]
+    a0 = _tri_area(cq, 0, 1, 2)
+    a1 = _tri_area(cq, 0, 2, 3)
+    su = math.sqrt(u1)
+    b0, b1 = 1.0 - su, u2 * su
+    b2 = 1.0 - b0 - b1
+    k1, k2 = (1, 2) if u3 * (a0 + a1) < a0 else (2, 3)
+    return (b0 * cq[0, 0] + b1 * cq[k1, 0] + b2 * cq[k2, 0], b0 * cq[0, 1] + b1 * cq[k1, 1] + b2 * cq[k2, 1],
+            b0 * cq[0, 2] + b1 * cq[k1, 2] + b2 * cq[k2, 2])
+
+
 @njit(cache=True, _nrt=False)
 def next_event(vx, vy, vz, nx, ny, nz, mode, m, stat, w, state, scene, occluded_fn, scratch, offset_rel,
                tgt_kind, tgt_row, tgt_abs_row, tgt_ref, tgt_first, tgt_count, tgt_area, tgt_center, tgt_near2,
@@ -134,27 +154,13 @@ def next_event(vx, vy, vz, nx, ny, nz, mode, m, stat, w, state, scene, occluded_
             mx, my, mz = sens_normal[s, 0], sens_normal[s, 1], sens_normal[s, 2]
             if (vx - sens_center[s, 0]) * mx + (vy - sens_center[s, 1]) * my + (vz - sens_center[s, 2]) * mz <= 0.0:
                 continue     # behind the sensor's plane: cannot cross it from the front
-            tb, bb = frame(mx, my, mz)
-            r = sens_radius[s] * math.sqrt(u1)
-            c, sn = r * math.cos(2.0 * math.pi * u2), r * math.sin(2.0 * math.pi * u2)
-            px = sens_center[s, 0] + c * tb[0] + sn * bb[0]
-            py = sens_center[s, 1] + c * tb[1] + sn * bb[1]
-            pz = sens_center[s, 2] + c * tb[2] + sn * bb[2]
+            px, py, pz = sensor_point(kind, s, u1, u2, u3, sens_center, sens_normal, sens_radius, sens_corners)
         elif kind == T_QUAD:
             s = tgt_ref[t]
             mx, my, mz = sens_normal[s, 0], sens_normal[s, 1], sens_normal[s, 2]
             if (vx - sens_center[s, 0]) * mx + (vy - sens_center[s, 1]) * my + (vz - sens_center[s, 2]) * mz <= 0.0:
                 continue
-            cq = sens_corners[s]
-            a0 = _tri_area(cq, 0, 1, 2)
-            a1 = _tri_area(cq, 0, 2, 3)
-            su = math.sqrt(u1)
-            b0, b1 = 1.0 - su, u2 * su
-            b2 = 1.0 - b0 - b1
-            k1, k2 = (1, 2) if u3 * (a0 + a1) < a0 else (2, 3)
-            px = b0 * cq[0, 0] + b1 * cq[k1, 0] + b2 * cq[k2, 0]
-            py = b0 * cq[0, 1] + b1 * cq[k1, 1] + b2 * cq[k2, 1]
-            pz = b0 * cq[0, 2] + b1 * cq[k1, 2] + b2 * cq[k2, 2]
+            px, py, pz = sensor_point(kind, s, u1, u2, u3, sens_center, sens_normal, sens_radius, sens_corners)
         else:
             lo, hi = tgt_first[t], tgt_first[t] + tgt_count[t] - 1
             while lo < hi:

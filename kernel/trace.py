@@ -46,8 +46,8 @@ from .embree import (ARGS, CAND, CAND_CAP, CAND_COUNT, DIR, GEOM_ID, HIT_U, HIT_
                      PRIM_ID, RAYHIT, TFAR, TNEAR)
 from .ptr import call_ptr3, load_f32, load_i64, load_u32, store_f32, store_i64, store_u32
 from .rng import seed_stream, uniform
-from .nee import INV_4PI, V_ISOTROPIC, V_LAMBERT, V_SURFACE, next_event, visible
-from .sampling import cosine_hemisphere, frame, mirror, phong_lobe, to_world, uniform_sphere
+from .nee import INV_4PI, V_ISOTROPIC, V_LAMBERT, V_SURFACE, next_event, sensor_point, visible
+from .sampling import cosine_hemisphere, mirror, phong_lobe, to_world, uniform_sphere
 
 # scattering events, in the order their probabilities are accumulated
 DIFFUSE_R, SPECULAR_R, DIFFUSE_T, SPECULAR_T, ABSORB = 0, 1, 2, 3, 4
@@ -228,24 +228,7 @@ def _image_event(vx, vy, vz, nx, ny, nz, mode, m, w, state, scene, intersect_fn,
             continue                                   # too close (unfolded): the crossing is counted
         s = tgt_ref[t]
         snx, sny, snz = sens_normal[s, 0], sens_normal[s, 1], sens_normal[s, 2]
-        if kind == 0:
-            tb, bb = frame(snx, sny, snz)
-            r = sens_radius[s] * math.sqrt(u1)
-            c, sn = r * math.cos(2.0 * math.pi * u2), r * math.sin(2.0 * math.pi * u2)
-            px = sens_center[s, 0] + c * tb[0] + sn * bb[0]
-            py = sens_center[s, 1] + c * tb[1] + sn * bb[1]
-            pz = sens_center[s, 2] + c * tb[2] + sn * bb[2]
-        else:
-            cq = sens_corners[s]
-            a0 = _quad_half_area(cq, 1, 2)
-            a1 = _quad_half_area(cq, 2, 3)
-            su = math.sqrt(u1)
-            b0, b1 = 1.0 - su, u2 * su
-            b2 = 1.0 - b0 - b1
-            k1, k2 = (1, 2) if u3 * (a0 + a1) < a0 else (2, 3)
-            px = b0 * cq[0, 0] + b1 * cq[k1, 0] + b2 * cq[k2, 0]
-            py = b0 * cq[0, 1] + b1 * cq[k1, 1] + b2 * cq[k2, 1]
-            pz = b0 * cq[0, 2] + b1 * cq[k1, 2] + b2 * cq[k2, 2]
+        px, py, pz = sensor_point(kind, s, u1, u2, u3, sens_center, sens_normal, sens_radius, sens_corners)
         sx = (px - qx) * mx + (py - qy) * my + (pz - qz) * mz
         if sx * sv <= 0.0:
             continue                                   # x and v on opposite sides of P: no reflection joins them
@@ -272,18 +255,7 @@ def _image_event(vx, vy, vz, nx, ny, nz, mode, m, w, state, scene, intersect_fn,
             continue
         side = 0.0 if mode == 0 else (1.0 if cos_v > 0.0 else -1.0)
         eps = offset_rel * vmag
-        store_f32(rh + ORG, vx + side * eps * nx)
-        store_f32(rh + ORG + 4, vy + side * eps * ny)
-        store_f32(rh + ORG + 8, vz + side * eps * nz)
-        store_f32(rh + TNEAR, 0.0)
-        store_f32(rh + DIR, dx)
-        store_f32(rh + DIR + 4, dy)
-        store_f32(rh + DIR + 8, dz)
-        store_f32(rh + DIR + 12, 0.0)
-        store_f32(rh + TFAR, L)
-        store_u32(rh + MASK, 0xFFFFFFFF)
-        store_u32(rh + GEOM_ID, INVALID_ID)
-        store_i64(scratch + CAND_COUNT, 0)
+        _set_ray(scratch, vx + side * eps * nx, vy + side * eps * ny, vz + side * eps * nz, dx, dy, dz, L)
         call_ptr3(intersect_fn, scene, rh, args)
         counters[4] += 1
         nee_stats[stat0 + pl, 0] += 1
@@ -353,20 +325,31 @@ def _image_event(vx, vy, vz, nx, ny, nz, mode, m, w, state, scene, intersect_fn,
 
 
 @njit(inline="always", cache=True)
+def _set_ray(scratch, ox, oy, oz, dx, dy, dz, tfar):
+    """Write a ray (origin, unit direction, [0, tfar]) into this thread's RTCRayHit, no hit yet, no sensor
+    candidates yet."""
+    rh = scratch + RAYHIT
+    store_f32(rh + ORG, ox)
+    store_f32(rh + ORG + 4, oy)
+    store_f32(rh + ORG + 8, oz)
+    store_f32(rh + TNEAR, 0.0)
+    store_f32(rh + DIR, dx)
+    store_f32(rh + DIR + 4, dy)
+    store_f32(rh + DIR + 8, dz)
+    store_f32(rh + DIR + 12, 0.0)
+    store_f32(rh + TFAR, tfar)
+    store_u32(rh + MASK, 0xFFFFFFFF)
+    store_u32(rh + GEOM_ID, INVALID_ID)
+    store_i64(scratch + CAND_COUNT, 0)
+
+
+@njit(inline="always", cache=True)
 def _n_images(picks, state):
     """How many image events at a vertex: int(picks), plus one with probability frac(picks)."""
     n = int(picks)
     if picks - n > 0.0 and uniform(state) < picks - n:
         n += 1
     return n
-
-
-@njit(inline="always", cache=True)
-def _quad_half_area(c, j, k):
-    ax, ay, az = c[j, 0] - c[0, 0], c[j, 1] - c[0, 1], c[j, 2] - c[0, 2]
-    bx, by, bz = c[k, 0] - c[0, 0], c[k, 1] - c[0, 1], c[k, 2] - c[0, 2]
-    cx, cy, cz = ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx
-    return 0.5 * math.sqrt(cx * cx + cy * cy + cz * cz)
 
 
 @njit(inline="always", cache=True)
@@ -584,18 +567,7 @@ def trace_chunk(scene, intersect_fn, scratch, seed, first, count,
         while True:
             skip_sensors = after_diffuse and nee_sensors
             skip_receivers = after_diffuse and nee_receivers
-            store_f32(rh + ORG, ox)
-            store_f32(rh + ORG + 4, oy)
-            store_f32(rh + ORG + 8, oz)
-            store_f32(rh + TNEAR, 0.0)
-            store_f32(rh + DIR, dx)
-            store_f32(rh + DIR + 4, dy)
-            store_f32(rh + DIR + 8, dz)
-            store_f32(rh + DIR + 12, 0.0)
-            store_f32(rh + TFAR, _TFAR_MAX)
-            store_u32(rh + MASK, 0xFFFFFFFF)
-            store_u32(rh + GEOM_ID, INVALID_ID)
-            store_i64(cand_count, 0)
+            _set_ray(scratch, ox, oy, oz, dx, dy, dz, _TFAR_MAX)
             call_ptr3(intersect_fn, scene, rh, args)
             counters[C_RAYS] += 1
             gid = load_u32(rh + GEOM_ID)
