@@ -34,7 +34,7 @@ import math
 import numpy as np
 from numba import njit
 
-from .embree import ARGS, CAND_COUNT, DIR, MASK, ORG, RAYHIT, TFAR, TNEAR
+from .embree import ARGS, CAND_COUNT, DIR, GEOM_ID, INVALID_ID, MASK, ORG, RAYHIT, TFAR, TNEAR
 from .ptr import call_ptr3, load_f32, store_f32, store_i64, store_u32
 from .rng import uniform
 from .sampling import frame
@@ -53,8 +53,9 @@ V_ISOTROPIC, V_LAMBERT, V_SURFACE = 0, 1, 2
 
 
 @njit(inline="always", cache=True)
-def visible(occluded_fn, scene, scratch, ox, oy, oz, dx, dy, dz, tfar):
-    """Is the segment from o along unit d, up to tfar, free of surfaces?  One ``rtcOccluded1`` call."""
+def set_ray(scratch, ox, oy, oz, dx, dy, dz, tfar):
+    """Write a ray (origin, unit direction, [0, tfar]) into this thread's RTCRayHit: all masks, ray id and
+    flags 0, no hit yet, no sensor candidates yet."""
     rh = scratch + RAYHIT
     store_f32(rh + ORG, ox)
     store_f32(rh + ORG + 4, oy)
@@ -68,9 +69,16 @@ def visible(occluded_fn, scene, scratch, ox, oy, oz, dx, dy, dz, tfar):
     store_u32(rh + MASK, 0xFFFFFFFF)
     store_u32(rh + MASK + 4, 0)
     store_u32(rh + MASK + 8, 0)
+    store_u32(rh + GEOM_ID, INVALID_ID)
     store_i64(scratch + CAND_COUNT, 0)
-    call_ptr3(occluded_fn, scene, rh, scratch + ARGS)
-    return load_f32(rh + TFAR) >= 0.0
+
+
+@njit(inline="always", cache=True)
+def visible(occluded_fn, scene, scratch, ox, oy, oz, dx, dy, dz, tfar):
+    """Is the segment from o along unit d, up to tfar, free of surfaces?  One ``rtcOccluded1`` call."""
+    set_ray(scratch, ox, oy, oz, dx, dy, dz, tfar)
+    call_ptr3(occluded_fn, scene, scratch + RAYHIT, scratch + ARGS)
+    return load_f32(scratch + RAYHIT + TFAR) >= 0.0
 
 
 @njit(inline="always", cache=True)

@@ -46,7 +46,7 @@ from .embree import (ARGS, CAND, CAND_CAP, CAND_COUNT, DIR, GEOM_ID, HIT_U, HIT_
                      PRIM_ID, RAYHIT, TFAR, TNEAR)
 from .ptr import call_ptr3, load_f32, load_i64, load_u32, store_f32, store_i64, store_u32
 from .rng import seed_stream, uniform
-from .nee import INV_4PI, V_ISOTROPIC, V_LAMBERT, V_SURFACE, next_event, sensor_point, visible
+from .nee import INV_4PI, V_ISOTROPIC, V_LAMBERT, V_SURFACE, next_event, sensor_point, set_ray, visible
 from .sampling import cosine_hemisphere, mirror, phong_lobe, to_world, uniform_sphere
 
 # scattering events, in the order their probabilities are accumulated
@@ -255,7 +255,7 @@ def _image_event(vx, vy, vz, nx, ny, nz, mode, m, w, state, scene, intersect_fn,
             continue
         side = 0.0 if mode == 0 else (1.0 if cos_v > 0.0 else -1.0)
         eps = offset_rel * vmag
-        _set_ray(scratch, vx + side * eps * nx, vy + side * eps * ny, vz + side * eps * nz, dx, dy, dz, L)
+        set_ray(scratch, vx + side * eps * nx, vy + side * eps * ny, vz + side * eps * nz, dx, dy, dz, L)
         call_ptr3(intersect_fn, scene, rh, args)
         counters[4] += 1
         nee_stats[stat0 + pl, 0] += 1
@@ -322,25 +322,6 @@ def _image_event(vx, vy, vz, nx, ny, nz, mode, m, w, state, scene, intersect_fn,
             nee_stats[stat0 + pl, 2] += contrib[b]
         n_out += 1
     return n_out
-
-
-@njit(inline="always", cache=True)
-def _set_ray(scratch, ox, oy, oz, dx, dy, dz, tfar):
-    """Write a ray (origin, unit direction, [0, tfar]) into this thread's RTCRayHit, no hit yet, no sensor
-    candidates yet."""
-    rh = scratch + RAYHIT
-    store_f32(rh + ORG, ox)
-    store_f32(rh + ORG + 4, oy)
-    store_f32(rh + ORG + 8, oz)
-    store_f32(rh + TNEAR, 0.0)
-    store_f32(rh + DIR, dx)
-    store_f32(rh + DIR + 4, dy)
-    store_f32(rh + DIR + 8, dz)
-    store_f32(rh + DIR + 12, 0.0)
-    store_f32(rh + TFAR, tfar)
-    store_u32(rh + MASK, 0xFFFFFFFF)
-    store_u32(rh + GEOM_ID, INVALID_ID)
-    store_i64(scratch + CAND_COUNT, 0)
 
 
 @njit(inline="always", cache=True)
@@ -567,7 +548,7 @@ def trace_chunk(scene, intersect_fn, scratch, seed, first, count,
         while True:
             skip_sensors = after_diffuse and nee_sensors
             skip_receivers = after_diffuse and nee_receivers
-            _set_ray(scratch, ox, oy, oz, dx, dy, dz, _TFAR_MAX)
+            set_ray(scratch, ox, oy, oz, dx, dy, dz, _TFAR_MAX)
             call_ptr3(intersect_fn, scene, rh, args)
             counters[C_RAYS] += 1
             gid = load_u32(rh + GEOM_ID)
