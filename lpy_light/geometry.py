@@ -257,19 +257,21 @@ def partner_free_boxes(tris: np.ndarray, start: np.ndarray, partners: np.ndarray
     return box
 
 
-def mirror_planes(tris: np.ndarray, source: np.ndarray, specular: np.ndarray, rel_tol: float = 1e-9):
+def mirror_planes(tris: np.ndarray, source: np.ndarray, specular: np.ndarray, two_sided=None,
+                  rel_tol: float = 1e-9):
     """Planar surfaces that can reflect specularly, for next events through a mirror (the image method).
 
     ``tris`` (T, 3, 3), ``source`` (T,) the surface each triangle comes from, ``specular`` (T,) bool: does
-    the triangle reflect specularly (perfect mirror) on a side it is seen from.  A surface is a plane when
-    all its triangles share one (within ``rel_tol`` of the coordinates' magnitude).  Returns
-    ``tri_plane`` (T,) int32 (plane index or -1), ``point`` (P, 3) and unit ``normal`` (P, 3) (the
-    first triangle's normal orientation).
+    the triangle reflect specularly (perfect mirror) on a side it is seen from; ``two_sided`` (T,) bool or
+    None.  A surface is a plane when all its triangles share one (within ``rel_tol`` of the coordinates'
+    magnitude).  Returns ``tri_plane`` (T,) int32 (plane index or -1), ``point`` (P, 3) and unit
+    ``normal`` (P, 3) (the first triangle's normal orientation), ``bounds`` (P, 2, 3) (min, max of the
+    plane's vertices) and ``one_sided`` (P,) bool (no triangle of the plane is two-sided).
     """
     tri_plane = np.full(len(tris), -1, np.int32)
     points, normals = [], []
     if len(tris) == 0:
-        return tri_plane, np.zeros((0, 3)), np.zeros((0, 3))
+        return tri_plane, np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 2, 3)), np.zeros(0, bool)
     n = triangle_normals(tris)
     scale = max(float(np.abs(tris).max()), 1e-300)
     order = np.argsort(source, kind="stable")
@@ -289,4 +291,12 @@ def mirror_planes(tris: np.ndarray, source: np.ndarray, specular: np.ndarray, re
         tri_plane[group] = len(points)
         points.append(p0)
         normals.append(n0)
-    return tri_plane, np.array(points, float).reshape(-1, 3), np.array(normals, float).reshape(-1, 3)
+    P, on = len(points), tri_plane >= 0
+    bounds = np.stack([np.full((P, 3), np.inf), np.full((P, 3), -np.inf)], axis=1)
+    np.minimum.at(bounds[:, 0], tri_plane[on], tris[on].min(axis=1))
+    np.maximum.at(bounds[:, 1], tri_plane[on], tris[on].max(axis=1))
+    any_two = np.zeros(P, bool)
+    if two_sided is not None:
+        np.logical_or.at(any_two, tri_plane[on], np.asarray(two_sided, bool)[on])
+    return (tri_plane, np.array(points, float).reshape(-1, 3), np.array(normals, float).reshape(-1, 3),
+            bounds, ~any_two)

@@ -238,17 +238,12 @@ class KernelScene:
         mats = chamber.tri_material[order]
         specular = (spec[mats[:, 0]] | (chamber.tri_two_sided[order] & spec[mats[:, 1]])) \
             if chamber.physics.specular == "mirror" and len(order) else np.zeros(len(order), bool)
-        self._chamber_plane, self.mir_point, self.mir_normal = mirror_planes(
-            tris[order], np.asarray(chamber.tri_source)[order], specular)
+        self._chamber_plane, self.mir_point, self.mir_normal, box, one_sided = mirror_planes(
+            tris[order], np.asarray(chamber.tri_source)[order], specular, chamber.tri_two_sided[order])
+        self.mir_box = np.ascontiguousarray(box + np.array([-1.0, 1.0])[None, :, None] * self._cop_pad)
+        self.mir_one_sided = one_sided.astype(np.uint8)
         self.mir_on = np.ones(len(self.mir_point), np.uint8)
         self.mir_weight = np.ones(len(self.mir_point))    # how often each plane is drawn (set by the pilot)
-        P, tv, tp = len(self.mir_point), self._chamber_verts, self._chamber_plane
-        self.mir_box = np.zeros((P, 2, 3))
-        self.mir_one_sided = np.ones(P, np.uint8)
-        for k in range(P):
-            v = tv[tp == k].reshape(-1, 3)
-            self.mir_box[k] = [v.min(axis=0) - self._cop_pad, v.max(axis=0) + self._cop_pad]
-            self.mir_one_sided[k] = 0 if self._chamber_two_sided[tp == k].any() else 1
         sensors = chamber.sensors
         self.scene = embree.EmbreeScene(one_sided=tris[one], two_sided=tris[two],
                                         sensors=sensors.bounding_triangles() if len(sensors) else None)

@@ -166,6 +166,7 @@ def test_mirror_planes_are_flat_specular_surfaces():
     tris = np.concatenate([square, tube, square + [0, 0, 2]])
     source = np.array([0] * len(square) + [1] * len(tube) + [2] * len(square))
     specular = np.array([True] * (len(square) + len(tube)) + [False] * len(square))
-    tri_plane, point, normal = mirror_planes(tris, source, specular)
+    tri_plane, point, normal, bounds, one_sided = mirror_planes(tris, source, specular)
     assert len(point) == 1 and np.allclose(np.abs(normal[0]), [0, 0, 1])
+    assert np.allclose(bounds[0], [[0, 0, 0], [1, 1, 0]]) and one_sided[0]
     assert np.all(tri_plane[:len(square)] == 0) and np.all(tri_plane[len(square):] == -1)
