@@ -164,6 +164,18 @@ VARIANTS = {
     "table top only": Variant("sansTABLE: only the top and underside removed, the four sides kept",
                               {"remove": ["tableAMaree", "soustableAMaree"]}, scenes=("angers-sanstable",),
                               replace_remove=True),
+    "table sides kept facing one way": Variant(
+        "sansTABLE: top, underside and the four sides' twins ending in 'r' removed (the other winding kept)",
+        {"remove": ["tableAMaree", "soustableAMaree"] + [t for t in TABLE if t.startswith("cote") and t.endswith("r")]},
+        scenes=("angers-sanstable",), replace_remove=True),
+    "table sides kept facing the other way": Variant(
+        "sansTABLE: top, underside and the four sides not ending in 'r' removed (the 'r' twins kept)",
+        {"remove": ["tableAMaree", "soustableAMaree"]
+         + [t for t in TABLE if t.startswith("cote") and not t.endswith("r")]},
+        scenes=("angers-sanstable",), replace_remove=True),
+    "no cornice tops": Variant("sansMakrolon: the cornice tops (facing up, the Makrolon's coplanar partners) "
+                               "removed with the Makrolon", {"remove": ["fauxPlafondInf"] + CORNICE_TOPS},
+                               scenes=("angers-sansmakrolon",)),
     "no cornices": Variant("sansMakrolon: the cornices removed with the Makrolon",
                            {"remove": ["fauxPlafondInf"] + CORNICE_TOPS + CORNICE_UNDERSIDES},
                            scenes=("angers-sansmakrolon",)),
