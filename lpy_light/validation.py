@@ -176,6 +176,9 @@ VARIANTS = {
     "no cornice tops": Variant("sansMakrolon: the cornice tops (facing up, the Makrolon's coplanar partners) "
                                "removed with the Makrolon", {"remove": ["fauxPlafondInf"] + CORNICE_TOPS},
                                scenes=("angers-sansmakrolon",)),
+    "no cornice undersides": Variant("sansMakrolon: the cornice undersides (facing down) removed with the Makrolon",
+                                     {"remove": ["fauxPlafondInf"] + CORNICE_UNDERSIDES},
+                                     scenes=("angers-sansmakrolon",)),
     "no cornices": Variant("sansMakrolon: the cornices removed with the Makrolon",
                            {"remove": ["fauxPlafondInf"] + CORNICE_TOPS + CORNICE_UNDERSIDES},
                            scenes=("angers-sansmakrolon",)),
