@@ -11,7 +11,7 @@ squares, and prints the χ² each leaves and the coefficient it needs (1 = the p
 
     .venv/bin/python benchmarks/material_sensitivity.py [--photons 1e7] [--out runs/material_sensitivity.npz]
 
-About 75 runs: ~13 min at 1e7 photons on 2 threads.  Prints one line per run, then the fits.
+About 50 runs: ~10-13 min at 1e7 photons on 2 threads.  Prints one line per run, then the fits.
 """
 import argparse
 import itertools
