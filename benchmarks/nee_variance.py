@@ -15,6 +15,7 @@ import time
 import numpy as np
 
 from lpy_light import simulate, validation
+from lpy_light.kernel.nee import near_discs
 
 
 def measure(ks, photons, seed=3, threads=2):
@@ -35,7 +36,9 @@ def line(label, rel, seconds, y):
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--photons", type=float, default=3e6)
-    ap.add_argument("--radii", type=float, nargs="*", default=[60, 100, 150, 300], help="exclusion radii (mm)")
+    ap.add_argument("--radii", type=float, nargs="*", default=[30, 100], help="exclusion radii (mm)")
+    ap.add_argument("--near", type=float, nargs="*", default=[0, 0.5, 2],
+                    help="near-disc factors (own next event within factor · radius · √targets; default 1)")
     ap.add_argument("--images", type=float, nargs="*", default=[1, 2], help="mirror next events per vertex")
     ap.add_argument("--threads", type=int, default=2)
     args = ap.parse_args()
@@ -56,6 +59,14 @@ def main():
         rel, sec = measure(ks, n, threads=args.threads)
         print(line("exclusion radius %g mm" % radius, rel, sec, y), flush=True)
     ks.targets = ks.targets[:8] + (near2,) + ks.targets[9:]
+    disc_radius = np.where(ks.targets[0] == 0, ks.sens[3][ks.targets[3]], 0.0)
+    default_lists = ks.targets[12:15]
+    for factor in args.near:
+        lists = near_discs(ks.tri_verts, ks.targets[7], disc_radius, factor)
+        ks.targets = ks.targets[:12] + lists + ks.targets[15:]
+        rel, sec = measure(ks, n, threads=args.threads)
+        print(line("near discs at %g·a·√n" % factor, rel, sec, y), flush=True)
+    ks.targets = ks.targets[:12] + default_lists + ks.targets[15:]
     for k in args.images:
         ks = simulate.KernelScene(chamber, estimator="nee")
         ks.nee_images = k

@@ -24,10 +24,12 @@ only) and meshes (receivers: organs, two-sided, or solid sensors, one-sided),
 sampled by triangle area.
 
 Near a target, 1/d² makes the estimate heavy-tailed (infinite variance as the
-vertex approaches the target).  So a vertex closer to a target than
-:data:`NEAR` times the target's bounding radius makes no next event for it, and
-the segment's real crossing of that target is counted instead — a fixed split
-of the path space, so still unbiased.
+vertex approaches the target).  Discs avoid it: their point is drawn by solid
+angle as seen from v (:func:`disc_point_by_solid_angle`), so a next event is
+bounded however near v is.  For quads and meshes, a vertex closer to a target
+than :data:`NEAR` times the target's bounding radius makes no next event for
+it, and the segment's real crossing of that target is counted instead — a fixed
+split of the path space, so still unbiased.
 """
 import math
 
@@ -45,7 +47,8 @@ DIFFUSE_R, DIFFUSE_T, ABSORB = 0, 2, 4
 # finds is off by ~1e-5 of the distance (measured: 0.75-1e-5 · d on a 96-triangle disc), so a shadow ray
 # to a point ON a mesh target must stop that much short or it is blocked by the target itself.
 END_REL = 2.0 ** -13
-NEAR = 3.0       # exclusion radius around a target, in its bounding radii
+NEAR = 3.0       # exclusion radius around a quad or mesh target, in its bounding radii
+NEAR_PICKED = 1.0    # discs nearer than this · radius · √(targets) get their own next event (:func:`near_discs`)
 INV_4PI = 1.0 / (4.0 * math.pi)
 
 # vertex modes
@@ -119,12 +122,60 @@ def sensor_point(kind, s, u1, u2, u3, sens_center, sens_normal, sens_radius, sen
             b0 * cq[0, 2] + b1 * cq[k1, 2] + b2 * cq[k2, 2])
 
 
+@njit(inline="always", cache=True)
+def disc_point_by_solid_angle(vx, vy, vz, s, u1, u2, sens_center, sens_normal, sens_radius):
+    """A point x on disc s drawn as seen from v, and the estimator's factor ``|cos θ_x| / |x − v|² / pdf_A(x)``
+    (steradians), whose mean is the disc's solid angle seen from v.
+
+    Polar coordinates (ρ, φ) about v's foot F on the disc's plane, v at height h in front of it: φ uniform
+    over the directions in which rays from F meet the disc (all of them when F is on the disc), then along
+    that ray the cosine of the angle at v uniform between its values at the disc's near and far edges
+    (exact solid-angle sampling along each ray).  The factor is Δφ · (cos_near − cos_far) ≤ 2π: bounded
+    however near v is to the disc, where uniform points on the disc give A·h/d³, heavy-tailed as d → 0.
+    Returns ``(x, y, z, factor)``; factor 0 when v is not in front of the disc.
+    """
+    cx, cy, cz = sens_center[s, 0], sens_center[s, 1], sens_center[s, 2]
+    mx, my, mz = sens_normal[s, 0], sens_normal[s, 1], sens_normal[s, 2]
+    a = sens_radius[s]
+    h = (vx - cx) * mx + (vy - cy) * my + (vz - cz) * mz
+    if not h > 0.0:
+        return cx, cy, cz, 0.0
+    tb, bb = frame(mx, my, mz)
+    ex, ey, ez = vx - cx, vy - cy, vz - cz                 # F − c in the disc's frame (the normal drops out)
+    fx = ex * tb[0] + ey * tb[1] + ez * tb[2]
+    fy = ex * bb[0] + ey * bb[1] + ez * bb[2]
+    f2 = fx * fx + fy * fy
+    if f2 <= a * a:
+        dphi = 2.0 * math.pi
+        phi = dphi * u1
+    else:
+        half = math.asin(a / math.sqrt(f2))
+        dphi = 2.0 * half
+        phi = math.atan2(-fy, -fx) + (2.0 * u1 - 1.0) * half
+    ux, uy = math.cos(phi), math.sin(phi)
+    b = ux * fx + uy * fy
+    root = math.sqrt(max(b * b - (f2 - a * a), 0.0))
+    rho1, rho2 = max(-b - root, 0.0), max(-b + root, 0.0)
+    # 1 − cos of the angle at v, in a form without cancellation for far vertices: ρ² / (r (r + h))
+    r1, r2 = math.sqrt(rho1 * rho1 + h * h), math.sqrt(rho2 * rho2 + h * h)
+    g1, g2 = rho1 * rho1 / (r1 * (r1 + h)), rho2 * rho2 / (r2 * (r2 + h))
+    span = g2 - g1
+    if not span > 0.0:
+        return cx, cy, cz, 0.0
+    g = g1 + u2 * span
+    c = 1.0 - g
+    rho = min(max(h * math.sqrt(g * (1.0 + c)) / c, rho1), rho2)     # h·tan, from 1 − cos
+    px, py = fx + rho * ux, fy + rho * uy
+    return (cx + px * tb[0] + py * bb[0], cy + px * tb[1] + py * bb[1], cz + px * tb[2] + py * bb[2],
+            dphi * span)
+
+
 @njit(cache=True, _nrt=False)
 def next_event(vx, vy, vz, nx, ny, nz, mode, m, stat, w, state, scene, occluded_fn, scratch, offset_rel,
                tgt_kind, tgt_row, tgt_abs_row, tgt_ref, tgt_first, tgt_count, tgt_area, tgt_center, tgt_near2,
                sens_center, sens_normal, sens_radius, sens_corners,
                nee_tri, nee_cdf, tri_verts, tri_normal, tri_mat, mat_prob, contrib, out_k, out_w, counters,
-               nee_stats, picks, vscale):
+               nee_stats, picks, vscale, vtri, near_start, near_list, near_r2):
     """Expected deposits of the segment leaving vertex v on every target; returns how many were written.
 
     v (scene units) with unit normal n (for Lambertian emission: the emitter's
@@ -139,6 +190,10 @@ def next_event(vx, vy, vz, nx, ny, nz, mode, m, stat, w, state, scene, occluded_
     costs ``picks`` shadow rays instead of one per target.
     ``vscale``: the vertex's round-off scale (its triangle's and the arriving ray's magnitudes, see
     :func:`kernel.trace.trace_chunk`); shadow rays start and stop that far (× ``offset_rel``) off surfaces.
+    ``vtri``: the vertex's triangle (-1 on a lamp).  With picks, a disc target nearer to v than
+    √``near_r2[t]`` gets a next event of its own, unscaled, and is skipped by the picks: a random pick
+    would deposit n_targets / picks times its large expected value, rarely (see :func:`build_targets`).
+    Its candidates are ``near_list[near_start[vtri] : near_start[vtri + 1]]``.
     """
     n_bands = w.shape[0]
     vmag = max(abs(vx), abs(vy), abs(vz), vscale)
@@ -148,21 +203,32 @@ def next_event(vx, vy, vz, nx, ny, nz, mode, m, stat, w, state, scene, occluded_
         n_iter, scale = picks, n_tgt / picks
     else:
         n_iter, scale = n_tgt, 1.0
-    for j in range(n_iter):
-        t = j if scale == 1.0 else min(int(uniform(state) * n_tgt), n_tgt - 1)
+    n_near = near_start[vtri + 1] - near_start[vtri] if scale != 1.0 and vtri >= 0 else 0
+    for j in range(n_near + n_iter):
+        if j < n_near:            # a near disc: its own next event
+            t = near_list[near_start[vtri] + j]
+            tscale = 1.0
+        else:
+            t = j - n_near if scale == 1.0 else min(int(uniform(state) * n_tgt), n_tgt - 1)
+            tscale = scale
+        ex, ey, ez = vx - tgt_center[t, 0], vy - tgt_center[t, 1], vz - tgt_center[t, 2]
+        d2c = ex * ex + ey * ey + ez * ez
+        if n_near > 0 and (d2c < near_r2[t]) != (j < n_near):
+            continue          # a near disc is served by its own event only; a listed one that is not near, by picks
         kind = tgt_kind[t]
         u1, u2, u3 = uniform(state), uniform(state), uniform(state)
-        ex, ey, ez = vx - tgt_center[t, 0], vy - tgt_center[t, 1], vz - tgt_center[t, 2]
-        if ex * ex + ey * ey + ez * ez < tgt_near2[t]:
+        if d2c < tgt_near2[t]:
             continue          # too close: 1/d² would be heavy-tailed; this segment's crossings are counted
         # (out_k, out_w hold at most 2 per iteration: size them 2 * max(picks, n_targets))
         g = -1
+        omega = 0.0
         if kind == T_DISC:
             s = tgt_ref[t]
             mx, my, mz = sens_normal[s, 0], sens_normal[s, 1], sens_normal[s, 2]
-            if (vx - sens_center[s, 0]) * mx + (vy - sens_center[s, 1]) * my + (vz - sens_center[s, 2]) * mz <= 0.0:
+            px, py, pz, omega = disc_point_by_solid_angle(vx, vy, vz, s, u1, u2, sens_center, sens_normal,
+                                                          sens_radius)
+            if omega == 0.0:
                 continue     # behind the sensor's plane: cannot cross it from the front
-            px, py, pz = sensor_point(kind, s, u1, u2, u3, sens_center, sens_normal, sens_radius, sens_corners)
         elif kind == T_QUAD:
             s = tgt_ref[t]
             mx, my, mz = sens_normal[s, 0], sens_normal[s, 1], sens_normal[s, 2]
@@ -189,7 +255,7 @@ def next_event(vx, vy, vz, nx, ny, nz, mode, m, stat, w, state, scene, occluded_
         cos_x = dx * mx + dy * my + dz * mz
         if kind != T_MESH2 and cos_x >= 0.0:
             continue          # sensors and one-sided receivers are met from the front only
-        geom = scale * tgt_area[t] * abs(cos_x) / dist2
+        geom = tscale * (omega if kind == T_DISC else tgt_area[t] * abs(cos_x) / dist2)
         cos_v = dx * nx + dy * ny + dz * nz
         if mode == V_ISOTROPIC:
             for b in range(n_bands):
@@ -252,10 +318,12 @@ def build_targets(n_sensors, sens_kind, sens_area, sens_center, sens_bound, n_re
     ``receiver_mask`` (R,) bool or None: only these receivers are targets (the
     others are still tallied, by counting).
 
-    Returns the target arrays, then ``sensor_target`` (S,) and
-    ``receiver_target`` (R,): each one's target index or -1.
+    Returns the target arrays (kind .. nee_cdf as :func:`next_event` takes them, then the exclusion radii
+    of next events through mirrors and the near-disc lists of :func:`near_discs`), then
+    ``sensor_target`` (S,) and ``receiver_target`` (R,): each one's target index or -1.
     """
     kind, row, abs_row, ref, first, count, area, center, near2 = [], [], [], [], [], [], [], [], []
+    img_near2 = []
     sensor_target = np.full(n_sensors, -1, np.int64)
     receiver_target = np.full(n_receivers_rows, -1, np.int64)
     nee_tri, nee_cdf = [], []
@@ -269,7 +337,9 @@ def build_targets(n_sensors, sens_kind, sens_area, sens_center, sens_bound, n_re
             count.append(0)
             area.append(float(sens_area[s]))
             center.append(sens_center[s])
-            near2.append(float((NEAR * sens_bound[s]) ** 2))
+            # discs are sampled by solid angle (bounded next events): no exclusion zone, except through mirrors
+            img_near2.append(float((NEAR * sens_bound[s]) ** 2))
+            near2.append(0.0 if sens_kind[s] == 0 else img_near2[-1])
             sensor_target[s] = len(kind) - 1
     if receivers and n_receivers_rows:
         tri_area = 0.5 * np.linalg.norm(np.cross(tri_verts[:, 1] - tri_verts[:, 0], tri_verts[:, 2] - tri_verts[:, 0]),
@@ -300,9 +370,44 @@ def build_targets(n_sensors, sens_kind, sens_area, sens_center, sens_bound, n_re
             lo_, hi_ = pts.min(axis=0), pts.max(axis=0)
             center.append((lo_ + hi_) / 2)
             near2.append(float((NEAR * np.linalg.norm(hi_ - lo_) / 2) ** 2))
+            img_near2.append(near2[-1])
             receiver_target[r] = len(kind) - 1
     i64 = lambda x: np.ascontiguousarray(x, dtype=np.int64)
     f64 = lambda x: np.ascontiguousarray(x, dtype=np.float64)
+    center = f64(np.reshape(center, (-1, 3)))
+    disc_radius = np.zeros(len(kind))
+    for s in range(n_sensors):
+        if sensor_target[s] >= 0 and sens_kind[s] == 0:
+            disc_radius[sensor_target[s]] = sens_bound[s]
+    near_start, near_list, near_r2 = near_discs(tri_verts, center, disc_radius)
     return ((np.ascontiguousarray(kind, dtype=np.int32), i64(row), i64(abs_row), i64(ref), i64(first), i64(count),
-             f64(area), f64(np.reshape(center, (-1, 3))), f64(near2), i64(nee_tri if nee_tri else np.zeros(0)),
-             f64(nee_cdf if nee_cdf else np.zeros(0))), sensor_target, receiver_target)
+             f64(area), center, f64(near2), i64(nee_tri if nee_tri else np.zeros(0)),
+             f64(nee_cdf if nee_cdf else np.zeros(0)), f64(img_near2), near_start, near_list, near_r2),
+            sensor_target, receiver_target)
+
+
+def near_discs(tri_verts, center, disc_radius, factor=NEAR_PICKED):
+    """Which disc targets are *near* a vertex, for :func:`next_event`'s own events, and on which triangles.
+
+    A random pick among n targets deposits n times a target's expected value; near a disc (solid angle
+    ≳ 1/n) that is a large deposit made rarely, worse than an event of its own.  Disc t is near v when
+    |v − c_t| < ``factor`` · a_t · √n (a_t its radius): there the disc's solid angle exceeds about
+    π / (factor² · n).  ``tri_verts`` (T, 3, 3); ``center`` (n, 3); ``disc_radius`` (n,), 0 for targets that
+    are not discs.  Returns ``near_start`` (T + 1,) int64, ``near_list`` int64 (the discs whose near zone
+    meets each triangle's bounding box, a superset of those near any of its points) and ``near_r2`` (n,).
+    """
+    n = len(center)
+    near_r2 = np.ascontiguousarray((factor * disc_radius * math.sqrt(max(n, 1))) ** 2, dtype=np.float64)
+    lo, hi = tri_verts.min(axis=1), tri_verts.max(axis=1)
+    pairs_tri, pairs_t = [], []
+    for t in np.flatnonzero(near_r2 > 0):
+        gap = np.clip(center[t], lo, hi) - center[t]
+        tris = np.flatnonzero(np.einsum("ij,ij->i", gap, gap) < near_r2[t])
+        pairs_tri.append(tris)
+        pairs_t.append(np.full(len(tris), t))
+    tris = np.concatenate(pairs_tri) if pairs_tri else np.zeros(0, np.int64)
+    ts = np.concatenate(pairs_t) if pairs_t else np.zeros(0, np.int64)
+    order = np.argsort(tris, kind="stable")
+    near_start = np.zeros(len(tri_verts) + 1, np.int64)
+    np.cumsum(np.bincount(tris, minlength=len(tri_verts)), out=near_start[1:])
+    return near_start, np.ascontiguousarray(ts[order], dtype=np.int64), near_r2

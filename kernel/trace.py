@@ -46,7 +46,8 @@ from .embree import (ARGS, CAND, CAND_CAP, CAND_COUNT, DIR, GEOM_ID, HIT_U, HIT_
                      PRIM_ID, RAYHIT, TFAR, TNEAR)
 from .ptr import call_ptr3, load_f32, load_i64, load_u32, store_f32, store_i64, store_u32
 from .rng import seed_stream, uniform
-from .nee import INV_4PI, V_ISOTROPIC, V_LAMBERT, V_SURFACE, next_event, sensor_point, set_ray, visible
+from .nee import (INV_4PI, V_ISOTROPIC, V_LAMBERT, V_SURFACE, disc_point_by_solid_angle, next_event, sensor_point,
+                  set_ray, visible)
 from .sampling import cosine_hemisphere, mirror, phong_lobe, to_world, uniform_sphere
 
 # scattering events, in the order their probabilities are accumulated
@@ -228,7 +229,14 @@ def _image_event(vx, vy, vz, nx, ny, nz, mode, m, w, state, scene, intersect_fn,
             continue                                   # too close (unfolded): the crossing is counted
         s = tgt_ref[t]
         snx, sny, snz = sens_normal[s, 0], sens_normal[s, 1], sens_normal[s, 2]
-        px, py, pz = sensor_point(kind, s, u1, u2, u3, sens_center, sens_normal, sens_radius, sens_corners)
+        if kind == 0:                                  # a disc: drawn by solid angle as seen from v's image
+            px, py, pz, omega = disc_point_by_solid_angle(ix, iy, iz, s, u1, u2, sens_center, sens_normal,
+                                                          sens_radius)
+            if omega == 0.0:
+                continue
+        else:
+            px, py, pz = sensor_point(kind, s, u1, u2, u3, sens_center, sens_normal, sens_radius, sens_corners)
+            omega = 0.0
         sx = (px - qx) * mx + (py - qy) * my + (pz - qz) * mz
         if sx * sv <= 0.0:
             continue                                   # x and v on opposite sides of P: no reflection joins them
@@ -301,7 +309,7 @@ def _image_event(vx, vy, vz, nx, ny, nz, mode, m, w, state, scene, intersect_fn,
                 f *= cos_v / math.pi
             else:
                 f *= mat_prob[m, 0 if cos_v > 0.0 else 2, b] * abs(cos_v) / math.pi
-            contrib[b] = w[b] * f * scale * mir_inv_p[k] * tgt_area[t] * abs(cos_x) / L2
+            contrib[b] = w[b] * f * scale * mir_inv_p[k] * (omega if kind == 0 else tgt_area[t] * abs(cos_x) / L2)
             any_light = any_light or contrib[b] > 0.0
         if not any_light:
             continue
@@ -424,7 +432,8 @@ def trace_chunk(scene, intersect_fn, scratch, seed, first, count,
                 emit_kind, emit_data, emit_cdf,
                 max_depth, offset_rel, n_receivers, expected_absorption,
                 occluded_fn, nee_sensors, nee_receivers, tgt_kind, tgt_row, tgt_abs_row, tgt_ref, tgt_first,
-                tgt_count, tgt_area, tgt_center, tgt_near2, nee_tri, nee_cdf, sensor_target, receiver_target,
+                tgt_count, tgt_area, tgt_center, tgt_near2, nee_tri, nee_cdf, tgt_img_near2, near_start, near_list,
+                near_r2, sensor_target, receiver_target,
                 tri_verts, mat_nee, emit_nee, picks, cop_start, cop_list, cop_box, cop_free, tri_two_sided,
                 img_picks, tri_plane, mir_point, mir_normal, mir_list, mir_cdf, mir_inv_p, mir_on, mir_box,
                 mir_one_sided, tally, tally_sq, counters, nee_stats):
@@ -461,8 +470,10 @@ def trace_chunk(scene, intersect_fn, scratch, seed, first, count,
     nee_sensors, nee_receivers : bool, whether sensors / receivers are
         next-event targets (:mod:`kernel.nee`); their crossings and hits after
         diffuse vertices are then not counted, the targets' expected values are.
-    tgt_*, nee_tri, nee_cdf, sensor_target, receiver_target : next-event
-        targets (:func:`kernel.nee.build_targets`); empty arrays for none.
+    tgt_*, nee_tri, nee_cdf, near_*, sensor_target, receiver_target : next-event
+        targets (:func:`kernel.nee.build_targets`); empty arrays for none.  ``tgt_near2`` are the
+        exclusion radii² of next events (0 for discs), ``tgt_img_near2`` those of next events through
+        mirrors.
     tri_verts : (T, 3, 3) float64, triangle vertices (to sample points on receivers).
     mat_nee (M,), emit_nee (E,) : uint8, next events from this material's
         surfaces / this emitter element (0: its segments are counted instead).
@@ -503,8 +514,8 @@ def trace_chunk(scene, intersect_fn, scratch, seed, first, count,
     dep = np.empty(n_bands)
     n_tgt = tgt_kind.shape[0]
     contrib = np.empty(n_bands)
-    out_k = np.empty(2 * max(n_tgt, picks) + 1, dtype=np.int64)
-    out_w = np.empty((2 * max(n_tgt, picks) + 1, n_bands))
+    out_k = np.empty(2 * (n_tgt + picks) + 1, dtype=np.int64)     # near discs + picks, 2 deposits each
+    out_w = np.empty((2 * (n_tgt + picks) + 1, n_bands))
     hit_k = np.empty(HIT_CAP, dtype=np.int64)
     hit_w = np.empty((HIT_CAP + 1, n_bands))     # + the flush's scratch row
     seen = np.empty(CAND_CAP, dtype=np.int64)
@@ -530,14 +541,14 @@ def trace_chunk(scene, intersect_fn, scratch, seed, first, count,
                                offset_rel, tgt_kind, tgt_row, tgt_abs_row, tgt_ref, tgt_first, tgt_count, tgt_area,
                                tgt_center, tgt_near2, sens_center, sens_normal, sens_radius, sens_corners, nee_tri, nee_cdf, tri_verts,
                                tri_normal, tri_mat, mat_prob, contrib, out_k, out_w, counters, nee_stats,
-                               picks, oscale)
+                               picks, oscale, -1, near_start, near_list, near_r2)
             for a in range(n_out):
                 nh = _record(out_k[a], out_w[a], hit_k, hit_w, nh, tally, tally_sq, fate0, counters)
             n_img = _n_images(img_picks, state) if img_on and max_depth > 0 else 0
             if n_img > 0:
                 n_out = _image_event(ox, oy, oz, enx, eny, enz, emode, 0, w, state, scene, intersect_fn, occluded_fn,
                                      scratch, offset_rel, oscale, tgt_kind, tgt_row, tgt_ref, tgt_area, tgt_center,
-                                     tgt_near2, sens_center, sens_normal, sens_radius, sens_corners, geom_offset,
+                                     tgt_img_near2, sens_center, sens_normal, sens_radius, sens_corners, geom_offset,
                                      tri_verts, tri_normal, tri_mat, tri_two_sided, mat_prob, mat_phong, cop_start,
                                      cop_list, cop_box, cop_free, tri_plane, mir_point, mir_normal, mir_list,
                                      mir_cdf, mir_inv_p, mir_box, mir_one_sided, n_img, img_picks, contrib, out_k,
@@ -583,7 +594,7 @@ def trace_chunk(scene, intersect_fn, scratch, seed, first, count,
                                    tgt_near2)
                 if counted and seg_plane >= 0 and sensor_target[s] >= 0:     # covered by image events?
                     counted = _image_counted(sensor_target[s], wx, wy, wz, seg_plane, mir_point, mir_normal,
-                                             tgt_center, tgt_near2)
+                                             tgt_center, tgt_img_near2)
                 if counted and _inside(s, ox + ts * dx, oy + ts * dy, oz + ts * dz,
                                        sens_kind, sens_center, sens_radius, sens_corners, sens_normal):
                     nh = _record(s, w, hit_k, hit_w, nh, tally, tally_sq, fate0, counters)
@@ -639,7 +650,7 @@ def trace_chunk(scene, intersect_fn, scratch, seed, first, count,
                                    offset_rel, tgt_kind, tgt_row, tgt_abs_row, tgt_ref, tgt_first, tgt_count,
                                    tgt_area, tgt_center, tgt_near2, sens_center, sens_normal, sens_radius, sens_corners, nee_tri, nee_cdf,
                                    tri_verts, tri_normal, tri_mat, mat_prob, contrib, out_k, out_w, counters,
-                                   nee_stats, picks, pscale + oscale)
+                                   nee_stats, picks, pscale + oscale, tri, near_start, near_list, near_r2)
                 for a in range(n_out):
                     nh = _record(out_k[a], out_w[a], hit_k, hit_w, nh, tally, tally_sq, fate0, counters)
                 # and through a mirror (if not cut at that mirror); the call itself is not free: only if drawn
@@ -647,7 +658,7 @@ def trace_chunk(scene, intersect_fn, scratch, seed, first, count,
                 if n_img > 0:
                     n_out = _image_event(px, py, pz, nx, ny, nz, V_SURFACE, m, w, state, scene, intersect_fn,
                                          occluded_fn, scratch, offset_rel, pscale + oscale, tgt_kind, tgt_row,
-                                         tgt_ref, tgt_area, tgt_center, tgt_near2, sens_center, sens_normal,
+                                         tgt_ref, tgt_area, tgt_center, tgt_img_near2, sens_center, sens_normal,
                                          sens_radius, sens_corners, geom_offset, tri_verts, tri_normal, tri_mat,
                                          tri_two_sided, mat_prob, mat_phong, cop_start, cop_list, cop_box,
                                          cop_free, tri_plane, mir_point, mir_normal, mir_list, mir_cdf,

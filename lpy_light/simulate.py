@@ -302,7 +302,7 @@ class KernelScene:
             self.n_sensors, self.sens[0], sensors.area, sensors.center, bound, self.n_receivers, self.tri_receiver,
             self.tri_verts, self.two_sided, self.n_sensors, self.n_sensors + self.n_receivers,
             sensors=self.nee_sensors, receivers=self.nee_receivers, receiver_mask=self.nee_receiver_mask)
-        # kernel order: tgt_kind .. tgt_area, tgt_center, tgt_near2, nee_tri, nee_cdf, sensor_target, receiver_target
+        # kernel order: tgt_kind .. tgt_near2, nee_tri, nee_cdf, tgt_img_near2, near_*, sensor_target, receiver_target
         self.targets = tuple(targets) + (sensor_target, receiver_target)
 
     def prune_next_events(self, photons: int = 8192, max_share: float = 1e-3, seed: int = 987654321,

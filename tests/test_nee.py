@@ -1,8 +1,11 @@
 """Next-event tallies (estimator "nee"): unbiased against quadrature and against analog counting."""
 import numpy as np
 import pytest
+from numba import njit
 
 from lpy_light import simulate
+from lpy_light.kernel.nee import disc_point_by_solid_angle
+from lpy_light.kernel.rng import seed_stream, uniform
 from lpy_light.scene import load_scene
 from scenes import box, lamp_rectangle, rad_polygon, rectangle_to_disc_fraction, write_scene
 
@@ -38,7 +41,7 @@ def test_direct_light_matches_quadrature_with_far_fewer_photons(tmp_path):
 
 
 # A room that exercises every path type: grey walls with a specular part, a mirror, a diffusing
-# sheet (diffuse + straight transmission) under a line lamp, sensors near walls (no next events there)
+# sheet (diffuse + straight transmission) under a line lamp, sensors near walls and one touching a wall
 ROOM = ("void plastic grey\n0\n0\n5 0.5 0.5 0.5 0.3 0\n\n"
         "void mirror silver\n0\n0\n3 0.9 0.9 0.9\n\n"
         "void trans diffuser\n0\n0\n7 0.1 0.1 0.1 0 0 0.7 0.4\n\n"
@@ -48,7 +51,8 @@ ROOM = ("void plastic grey\n0\n0\n5 0.5 0.5 0.5 0.3 0\n\n"
         + rad_polygon("diffuser", "sheet", [(200, 200, 950), (800, 200, 950), (800, 800, 950), (200, 800, 950)])
         + "lamp cylinder tube\n0\n0\n7 300 500 1020 700 500 1020 5\n\n")
 ROOM_SENSORS = [(500, 500, 500, 40, 0, 0, 1), (200, 800, 300, 40, 0, 0, 1), (50, 500, 600, 40, 1, 0, 0),
-                (500, 500, 900, 40, 0, 0, 1), (500, 500, 200, 40, 0, 0, -1), (900, 500, 500, 40, 1, 0, 0)]
+                (500, 500, 900, 40, 0, 0, 1), (500, 500, 200, 40, 0, 0, -1), (900, 500, 500, 40, 1, 0, 0),
+                (500, 960, 400, 40, 0, 0, 1)]     # the last one touches the wall y = 1000, as Angers' row y = 1830
 
 
 @pytest.fixture(scope="module")
@@ -128,7 +132,7 @@ def test_shadow_rays_reach_thin_sliver_triangles(tmp_path):
         nee.next_event(900.0, 500.0, 0.0, 0.0, 0.0, 1.0, nee.V_SURFACE, grey, 0, np.ones(1), state, ks.scene.handle,
                        ks.occluded, scratch.ctypes.data, chamber.physics.offset, *tg[:9], *ks.sens[1:5], tg[9], tg[10],
                        ks.tri_verts, ks.tri_normal, ks.tri_mat, ks.mat_prob, np.empty(1), np.empty(8, np.int64),
-                       np.empty((8, 1)), counters, stats, 1, 1000.0)
+                       np.empty((8, 1)), counters, stats, 1, 1000.0, -1, *tg[12:15])
     assert stats[0, 0] == 200 and stats[0, 1] == 200, "shadow rays cast, unblocked: %s" % stats[0, :2]
 
     ks.mat_nee[:] = 1
@@ -170,3 +174,55 @@ def test_mirror_planes_are_flat_specular_surfaces():
     assert len(point) == 1 and np.allclose(np.abs(normal[0]), [0, 0, 1])
     assert np.allclose(bounds[0], [[0, 0, 0], [1, 1, 0]]) and one_sided[0]
     assert np.all(tri_plane[:len(square)] == 0) and np.all(tri_plane[len(square):] == -1)
+
+
+# --- discs drawn by solid angle ----------------------------------------------------------------------------
+
+@njit(cache=True)
+def _disc_samples(v, center, normal, radius, n, seed):
+    state = np.zeros(1, dtype=np.uint64)
+    seed_stream(state, seed, 0)
+    out = np.empty((n, 4))
+    for i in range(n):
+        x, y, z, f = disc_point_by_solid_angle(v[0], v[1], v[2], 0, uniform(state), uniform(state),
+                                               center, normal, radius)
+        out[i, 0], out[i, 1], out[i, 2], out[i, 3] = x, y, z, f
+    return out
+
+
+def _solid_angle_quadrature(v, a, weight=lambda x, y: 1.0, n=1500):
+    """∫_disc weight · h / d³ dA for the disc of radius a at the origin facing +z, seen from v: Gauss-Legendre
+    in r, trapezoid in the angle (periodic), independent of the sampler's geometry."""
+    r, wr = np.polynomial.legendre.leggauss(n)
+    r, wr = a * (r + 1) / 2, wr * a / 2
+    psi = np.linspace(0, 2 * np.pi, 2 * n, endpoint=False)
+    R, P = np.meshgrid(r, psi, indexing="ij")
+    X, Y = R * np.cos(P), R * np.sin(P)
+    d2 = (X - v[0]) ** 2 + (Y - v[1]) ** 2 + v[2] ** 2
+    f = v[2] / d2 ** 1.5 * weight(X, Y) * R
+    return float(np.sum(f * wr[:, None]) * (2 * np.pi / len(psi)))
+
+
+@pytest.mark.parametrize("v", [(0, 0, 50), (15, 0, 5), (6, 3, 2), (10.5, 0, 0.5), (0, 10.2, 0.05), (1000, 400, 3000)])
+def test_disc_sampled_by_solid_angle_is_unbiased_and_bounded(v):
+    """The mean of the factor is the disc's solid angle (and of factor · x its first moment) from points on
+    the axis, beside the disc, above it near the rim, grazing its edge and far away; the factor never
+    exceeds 2π, where uniform points (A·h/d³) are unbounded near the rim."""
+    a = 10.0
+    center, normal, radius = np.zeros((1, 3)), np.array([[0.0, 0.0, 1.0]]), np.array([a])
+    s = _disc_samples(np.asarray(v, float), center, normal, radius, 200_000, 7)
+    assert np.all(np.hypot(s[:, 0], s[:, 1]) <= a * (1 + 1e-9)) and np.all(s[:, 2] == 0.0)
+    assert np.all(s[:, 3] > 0) and np.all(s[:, 3] <= 2 * np.pi)
+    n = len(s)
+    for weight, values in ((lambda x, y: 1.0, s[:, 3]), (lambda x, y: x, s[:, 3] * s[:, 0])):
+        expected = _solid_angle_quadrature(v, a, weight)
+        mean, sigma = values.mean(), values.std() / np.sqrt(n)
+        assert abs(mean - expected) < 4 * sigma + 1e-9 * abs(expected), (v, mean, expected, sigma)
+    if v == (0, 0, 50):      # on the axis: the analytic solid angle, and the factor is constant
+        assert np.allclose(s[:, 3], 2 * np.pi * (1 - 50 / np.hypot(50, a)), rtol=1e-12)
+
+
+def test_disc_sampler_behind_the_disc_gives_nothing():
+    center, normal, radius = np.zeros((1, 3)), np.array([[0.0, 0.0, 1.0]]), np.array([10.0])
+    s = _disc_samples(np.array([3.0, 0.0, -1.0]), center, normal, radius, 10, 1)
+    assert np.all(s[:, 3] == 0.0)
