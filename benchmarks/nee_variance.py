@@ -1,13 +1,15 @@
-"""Where the next-event estimator's variance is on the Angers sensors, and two knobs that do not remove it.
+"""Where the next-event estimator's variance is on the Angers sensors, and the knobs that move it.
 
 Runs the full chamber with ``--estimator nee`` and prints the spread of the sensors' relative σ (median,
 rms, 90th percentile, max), the median per row of constant y (the row y = 1830 touches the wall at
-y = 1840), then the same with a wider exclusion radius around each sensor (next events from vertices
-closer than R are replaced by counted crossings; default 3 radii = 30 mm) and with more next events
+y = 1840), then the same with an exclusion radius around each sensor (next events from vertices closer
+than R replaced by counted crossings: what the estimator did before discs were drawn by solid angle,
+with R = 30 mm), with other near-disc zones (a disc nearer than factor · radius · √targets gets its own
+next event instead of a scaled random pick; default factor 1; 0 = none) and with more next events
 through mirrors per vertex (default 0.25).  σ²·t (mean relative variance × seconds) is the cost to
 compare: lower is better.
 
-    .venv/bin/python benchmarks/nee_variance.py [--photons 3e6] [--radii 60 100 150 300] [--images 1 2]
+    .venv/bin/python benchmarks/nee_variance.py [--photons 3e6] [--radii 30 100] [--near 0 0.5 2] [--images 1 2]
 """
 import argparse
 import time
