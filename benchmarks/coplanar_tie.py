@@ -30,7 +30,7 @@ STRIPS = {"G": ((0, 2400), (1800, 1840)), "D": ((0, 2400), (0, 40)), "AV": ((236
 OLD = "Makrolon polygon fauxPlafondInf\n0\n0\n12\n0.0 0.0 1970\n2400.0 0.0 1970\n2400.0 1840.0 1970\n0.0 1840.0 1970"
 
 
-@njit(cache=True)
+@njit(cache=False)     # not cached: numba would not see edits to the kernel functions it calls
 def _cast(scene, fn, scratch, origins, dirs, out):
     rh = scratch + RAYHIT
     for i in range(origins.shape[0]):

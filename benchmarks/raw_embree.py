@@ -51,7 +51,7 @@ _TFAR_MAX = 3.0e38
 
 
 # ---- (b): the raw loop through our binding -------------------------------------------------
-@njit(nogil=True, cache=True)
+@njit(nogil=True, cache=False)     # not cached: numba would not see edits to the kernel it calls
 def trace_rays(scene, intersect_fn, scratch, org, dirs, out_t, out_prim, out_geom):
     """Closest hit of every ray (float32 origins/directions, (n, 3)); t = inf and ids -1 on a miss."""
     rh = scratch + RAYHIT

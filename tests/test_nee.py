@@ -178,7 +178,7 @@ def test_mirror_planes_are_flat_specular_surfaces():
 
 # --- discs drawn by solid angle ----------------------------------------------------------------------------
 
-@njit(cache=True)
+@njit(cache=False)     # not cached: numba would not see edits to the kernel functions it calls
 def _disc_samples(v, center, normal, radius, n, seed):
     state = np.zeros(1, dtype=np.uint64)
     seed_stream(state, seed, 0)

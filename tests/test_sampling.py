@@ -17,7 +17,7 @@ N = 200_000
 AXIS = np.array([0.3, -0.5, 0.8]) / np.linalg.norm([0.3, -0.5, 0.8])
 
 
-@njit(cache=True)
+@njit(cache=False)     # not cached: numba would not see edits to the kernel functions it calls
 def _draw(kind, ax, ay, az, exponent, n, seed):
     out = np.empty((n, 3))
     state = np.zeros(1, dtype=np.uint64)
