@@ -22,9 +22,10 @@ table says) — so origins lie on the lamps and on the surfaces photons actually
 proportions they reach them.  The walk is preparation, not timed.
 
 Timings are best-of-``repeat`` wall-clock (the machine may be shared).  Ratios kernel / raw are
-printed per thread count; the target is >= 0.8.
+printed per thread count; the target is >= 0.8.  ``--plant`` adds the procedural rose of
+``benchmarks/rose.py`` (its last stage, ~21 000 triangles) to all four, as organs in the kernel.
 
-    .venv/bin/python benchmarks/raw_embree.py [--threads 1 2] [--rays 2e6] [--photons 2e6] [--repeat 5]
+    .venv/bin/python benchmarks/raw_embree.py [--threads 1 2] [--rays 2e6] [--photons 2e6] [--repeat 5] [--plant]
 """
 from __future__ import annotations
 
@@ -200,8 +201,25 @@ def _embreex_pass(scene, org, dirs, threads):
 
 
 # ---- everything -------------------------------------------------------------------------------
+def _kernel_scene(scene, plant):
+    """The kernel's scene (estimator weighted) and its triangles (kernel order): the chamber, with the
+    procedural rose of ``benchmarks/rose.py`` at its last stage on the table when ``plant``."""
+    if not plant:
+        chamber = load_scene(resolve_scene(scene))
+        ks = simulate.KernelScene(chamber, "weighted")
+        return ks, chamber.triangles[ks.order]
+    from lpy_light.light import LightModel
+    from rose import LEAF_MATERIAL, rose
+
+    model = LightModel(scene, plant_unit="cm", estimator="weighted", lamp_flux=[1.0],
+                       organs={"Leaf": LEAF_MATERIAL, "Internode": LEAF_MATERIAL[0], "Bud": LEAF_MATERIAL[0]})
+    organs = model.organs_from_meshes(rose(4, 4))
+    model.kscene.set_organs(organs, model.materials)
+    return model.kscene, model.kscene.tri_verts
+
+
 def measure(threads=(1, 2), rays: int = 1_000_000, photons: int = 1_000_000, repeat: int = 3,
-            scene: str = "angers", seed: int = 1, verbose: bool = False) -> dict:
+            scene: str = "angers", seed: int = 1, verbose: bool = False, plant: bool = False) -> dict:
     """Raw Embree rates (embreex, our binding) and the kernel's, per thread count; best of ``repeat``.
 
     Returns ``{"rays": ..., "photons": ..., "rays_per_photon": ..., "by_threads": {T: {...}}}``
@@ -214,10 +232,7 @@ def measure(threads=(1, 2), rays: int = 1_000_000, photons: int = 1_000_000, rep
         if verbose:
             print(*a, flush=True)
 
-    chamber = load_scene(resolve_scene(scene))
-    ks = simulate.KernelScene(chamber, "weighted")
-    keep = ks.order
-    tris = chamber.triangles[keep]
+    ks, tris = _kernel_scene(scene, plant)
     plain = embree.EmbreeScene(two_sided=tris)           # same triangles, no filters, no sensors
     ex_scene, ex_mesh = _embreex_scene(tris)
     say("scene %s: %d triangles (%d sensors in the kernel's scene)" % (scene, len(tris), ks.n_sensors))
@@ -233,7 +248,8 @@ def measure(threads=(1, 2), rays: int = 1_000_000, photons: int = 1_000_000, rep
     say("binding and embreex agree on %.4f of the closest hits (plain scene)" % agree)
     simulate.run(ks, 2000, seed=seed, threads=1)
 
-    out = {"scene": scene, "rays": int(len(org)), "photons": int(photons), "repeat": int(repeat),
+    out = {"scene": scene + (" + rose (%d organs)" % len(ks.organs) if plant else ""), "triangles": len(tris),
+           "rays": int(len(org)), "photons": int(photons), "repeat": int(repeat),
            "agreement_plain": agree, "by_threads": {}}
     for T in threads:
         best, cpu_best = {}, {}
@@ -270,8 +286,9 @@ def measure(threads=(1, 2), rays: int = 1_000_000, photons: int = 1_000_000, rep
 
 
 def report(out) -> str:
-    lines = ["Angers chamber (%s), %d photon-like rays, kernel: %d photons, weighted, %.2f rays/photon; "
-             "best of %d" % (out["scene"], out["rays"], out["photons"], out["rays_per_photon"], out["repeat"]),
+    lines = ["%s, %d triangles, %d photon-like rays, kernel: %d photons, weighted, %.2f rays/photon; "
+             "best of %d" % (out["scene"], out.get("triangles", 0), out["rays"], out["photons"],
+                             out["rays_per_photon"], out["repeat"]),
              "%-8s %14s %14s %14s %14s %14s" % ("threads", "embreex", "binding plain", "binding kern.", "kernel",
                                                 "photons/s")]
     for T, b in out["by_threads"].items():
@@ -302,9 +319,12 @@ def main(argv=None):
     ap.add_argument("--photons", type=float, default=2e6)
     ap.add_argument("--repeat", type=int, default=5)
     ap.add_argument("--scene", default="angers")
+    ap.add_argument("--plant", action="store_true",
+                    help="add the procedural rose of benchmarks/rose.py (516 organs, ~21 000 triangles)")
     ap.add_argument("--json", default=None, help="also write the numbers to this file")
     args = ap.parse_args(argv)
-    out = measure(tuple(args.threads), int(args.rays), int(args.photons), args.repeat, args.scene, verbose=True)
+    out = measure(tuple(args.threads), int(args.rays), int(args.photons), args.repeat, args.scene, verbose=True,
+                  plant=args.plant)
     print(report(out))
     if args.json:
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)
