@@ -158,13 +158,17 @@ def disc_point_by_solid_angle(vx, vy, vz, s, u1, u2, sens_center, sens_normal, s
     rho1, rho2 = max(-b - root, 0.0), max(-b + root, 0.0)
     # 1 − cos of the angle at v, in a form without cancellation for far vertices: ρ² / (r (r + h))
     r1, r2 = math.sqrt(rho1 * rho1 + h * h), math.sqrt(rho2 * rho2 + h * h)
-    g1, g2 = rho1 * rho1 / (r1 * (r1 + h)), rho2 * rho2 / (r2 * (r2 + h))
+    d1, d2 = r1 * (r1 + h), r2 * (r2 + h)
+    if not d2 > 0.0:             # h and the disc below float64's range: nothing to see
+        return cx, cy, cz, 0.0
+    g1 = rho1 * rho1 / d1 if d1 > 0.0 else 0.0
+    g2 = rho2 * rho2 / d2
     span = g2 - g1
     if not span > 0.0:
         return cx, cy, cz, 0.0
     g = g1 + u2 * span
     c = 1.0 - g
-    rho = min(max(h * math.sqrt(g * (1.0 + c)) / c, rho1), rho2)     # h·tan, from 1 − cos
+    rho = min(max(h * math.sqrt(g * (1.0 + c)) / c, rho1), rho2) if c > 0.0 else rho2   # h·tan, from 1 − cos
     px, py = fx + rho * ux, fy + rho * uy
     return (cx + px * tb[0] + py * bb[0], cy + px * tb[1] + py * bb[1], cz + px * tb[2] + py * bb[2],
             dphi * span)

@@ -226,3 +226,14 @@ def test_disc_sampler_behind_the_disc_gives_nothing():
     center, normal, radius = np.zeros((1, 3)), np.array([[0.0, 0.0, 1.0]]), np.array([10.0])
     s = _disc_samples(np.array([3.0, 0.0, -1.0]), center, normal, radius, 10, 1)
     assert np.all(s[:, 3] == 0.0)
+
+
+@pytest.mark.parametrize("h", [1e-300, 1e-200, 1e-12])
+def test_disc_sampler_grazing_the_plane_stays_finite(h):
+    """A vertex all but in the disc's plane (beside it, or over it): finite factors within [0, 2π], points on
+    the disc, no division by zero (numba would raise it inside the kernel)."""
+    center, normal, radius = np.zeros((1, 3)), np.array([[0.0, 0.0, 1.0]]), np.array([10.0])
+    for v in ([15.0, 0.0, h], [3.0, 0.0, h]):
+        s = _disc_samples(np.array(v), center, normal, radius, 1000, 2)
+        assert np.all(np.isfinite(s)) and np.all((s[:, 3] >= 0) & (s[:, 3] <= 2 * np.pi))
+        assert np.all(np.hypot(s[:, 0], s[:, 1]) <= 10.0 * (1 + 1e-9))
