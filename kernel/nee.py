@@ -196,7 +196,7 @@ def next_event(vx, vy, vz, nx, ny, nz, mode, m, stat, w, state, scene, occluded_
     :func:`kernel.trace.trace_chunk`); shadow rays start and stop that far (× ``offset_rel``) off surfaces.
     ``vtri``: the vertex's triangle (-1 on a lamp).  With picks, a disc target nearer to v than
     √``near_r2[t]`` gets a next event of its own, unscaled, and is skipped by the picks: a random pick
-    would deposit n_targets / picks times its large expected value, rarely (see :func:`build_targets`).
+    would deposit n_targets / picks times its large expected value, rarely (see :func:`near_discs`).
     Its candidates are ``near_list[near_start[vtri] : near_start[vtri + 1]]``.
     """
     n_bands = w.shape[0]
@@ -223,7 +223,7 @@ def next_event(vx, vy, vz, nx, ny, nz, mode, m, stat, w, state, scene, occluded_
         u1, u2, u3 = uniform(state), uniform(state), uniform(state)
         if d2c < tgt_near2[t]:
             continue          # too close: 1/d² would be heavy-tailed; this segment's crossings are counted
-        # (out_k, out_w hold at most 2 per iteration: size them 2 * max(picks, n_targets))
+        # (out_k, out_w hold at most 2 per iteration: size them 2 * (picks + n_targets))
         g = -1
         omega = 0.0
         if kind == T_DISC:
