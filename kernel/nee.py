@@ -396,12 +396,20 @@ def near_discs(tri_verts, center, disc_radius, factor=NEAR_PICKED):
     A random pick among n targets deposits n times a target's expected value; near a disc (solid angle
     ≳ 1/n) that is a large deposit made rarely, worse than an event of its own.  Disc t is near v when
     |v − c_t| < ``factor`` · a_t · √n (a_t its radius): there the disc's solid angle exceeds about
-    π / (factor² · n).  ``tri_verts`` (T, 3, 3); ``center`` (n, 3); ``disc_radius`` (n,), 0 for targets that
+    π / (factor² · n).  That radius is capped at 1.5 × the distance from c_t to the nearest other target,
+    so that a vertex amid a dense grid of many discs makes a handful of own events (≲ 10 in a plane), not
+    hundreds.  ``tri_verts`` (T, 3, 3); ``center`` (n, 3); ``disc_radius`` (n,), 0 for targets that
     are not discs.  Returns ``near_start`` (T + 1,) int64, ``near_list`` int64 (the discs whose near zone
     meets each triangle's bounding box, a superset of those near any of its points) and ``near_r2`` (n,).
     """
     n = len(center)
-    near_r2 = np.ascontiguousarray((factor * disc_radius * math.sqrt(max(n, 1))) ** 2, dtype=np.float64)
+    radius = factor * disc_radius * math.sqrt(max(n, 1))
+    for t in np.flatnonzero(radius > 0):
+        gap = center - center[t]
+        d2 = np.einsum("ij,ij->i", gap, gap)
+        d2[t] = np.inf
+        radius[t] = min(radius[t], 1.5 * math.sqrt(d2.min()))
+    near_r2 = np.ascontiguousarray(radius ** 2, dtype=np.float64)
     lo, hi = tri_verts.min(axis=1), tri_verts.max(axis=1)
     pairs_tri, pairs_t = [], []
     for t in np.flatnonzero(near_r2 > 0):

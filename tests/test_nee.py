@@ -237,3 +237,20 @@ def test_disc_sampler_grazing_the_plane_stays_finite(h):
         s = _disc_samples(np.array(v), center, normal, radius, 1000, 2)
         assert np.all(np.isfinite(s)) and np.all((s[:, 3] >= 0) & (s[:, 3] <= 2 * np.pi))
         assert np.all(np.hypot(s[:, 0], s[:, 1]) <= 10.0 * (1 + 1e-9))
+
+
+def test_near_disc_zones_stay_small_in_a_dense_grid():
+    """a·√n alone would make a vertex amid 2500 discs (radius 5, 20 mm apart) serve ~150 own events; the
+    zone is capped at 1.5 spacings.  Triangles list only the discs whose zone reaches their bounding box."""
+    from lpy_light.kernel.nee import near_discs
+    g = np.arange(50) * 20.0
+    x, y = np.meshgrid(g, g)
+    center = np.c_[x.ravel(), y.ravel(), np.full(x.size, 100.0)]
+    tri = np.array([[[490, 490, 99], [510, 490, 99], [500, 510, 99]],            # under the grid's middle
+                    [[5000, 0, 0], [5100, 0, 0], [5000, 100, 0]]], float)      # far away
+    start, lst, r2 = near_discs(tri, center, np.full(len(center), 5.0))
+    assert np.allclose(np.sqrt(r2), 30.0)                      # min(5·√2500 = 250, 1.5 · 20)
+    near_mid = lst[start[0]:start[1]]
+    assert 5 <= len(near_mid) <= 20 and start[2] == start[1]
+    d = np.linalg.norm(center[near_mid] - [500, 500, 99], axis=1)
+    assert np.all(d < 30.0 + 20.0)
