@@ -48,6 +48,7 @@ DIFFUSE_R, DIFFUSE_T, ABSORB = 0, 2, 4
 # to a point ON a mesh target must stop that much short or it is blocked by the target itself.
 END_REL = 2.0 ** -13
 NEAR = 3.0       # exclusion radius around a quad or mesh target, in its bounding radii
+FAR = 10.0      # discs farther than FAR radii: points drawn by area
 NEAR_PICKED = 1.0    # discs nearer than this · radius · √(targets) get their own next event (:func:`near_discs`)
 INV_4PI = 1.0 / (4.0 * math.pi)
 
@@ -174,12 +175,44 @@ def disc_point_by_solid_angle(vx, vy, vz, s, u1, u2, sens_center, sens_normal, s
             dphi * span)
 
 
+@njit(inline="always", cache=True)
+def view_factors(mode):
+    """(c0, c1): the pdf of leaving a vertex of this mode towards direction ω is c0 + c1 · |cos| (for a
+    surface, times the band's diffuse probability on that side)."""
+    if mode == V_ISOTROPIC:
+        return INV_4PI, 0.0
+    return 0.0, 1.0 / math.pi
+
+
+@njit(inline="always", cache=True)
+def point_view(t, vx, vy, vz, nx, ny, nz, mode, tgt_ref, tgt_area, tgt_center, sens_normal):
+    """Sensor target t's next event from v as if t were a point at its centre: ``(γ, cos_v)``.
+
+    γ = A · cos θ_c / d_c² · p(ω_c), without the band factor of a surface vertex (its ``P_dR,b`` for
+    cos_v > 0, ``P_dT,b`` below); 0 where v is behind the sensor's plane (so is the true value).  The
+    control variate of :func:`next_event`: deposited to every sensor at every vertex
+    (:func:`kernel.trace._control_deposits`, the same arithmetic), and subtracted from each pick, so that
+    a pick only carries the difference between the true, occluded value and γ."""
+    s = tgt_ref[t]
+    ex, ey, ez = tgt_center[t, 0] - vx, tgt_center[t, 1] - vy, tgt_center[t, 2] - vz
+    d2 = max(ex * ex + ey * ey + ez * ez, 1e-300)
+    hd = -(ex * sens_normal[s, 0] + ey * sens_normal[s, 1] + ez * sens_normal[s, 2])     # h · d
+    if not hd > 0.0:
+        return 0.0, 0.0
+    inv_d = 1.0 / math.sqrt(d2)
+    cos_v = (ex * nx + ey * ny + ez * nz) * inv_d
+    if mode == V_LAMBERT and cos_v <= 0.0:
+        return 0.0, cos_v
+    c0, c1 = view_factors(mode)
+    return tgt_area[t] * hd * (inv_d * inv_d * inv_d) * (c0 + c1 * math.fabs(cos_v)), cos_v
+
+
 @njit(cache=True, _nrt=False)
 def next_event(vx, vy, vz, nx, ny, nz, mode, m, stat, w, state, scene, occluded_fn, scratch, offset_rel,
                tgt_kind, tgt_row, tgt_abs_row, tgt_ref, tgt_first, tgt_count, tgt_area, tgt_center, tgt_near2,
                sens_center, sens_normal, sens_radius, sens_corners,
                nee_tri, nee_cdf, tri_verts, tri_normal, tri_mat, mat_prob, contrib, out_k, out_w, counters,
-               nee_stats, picks, vscale, vtri, near_start, near_list, near_r2):
+               nee_stats, picks, vscale, vtri, near_start, near_list, near_r2, control):
     """Expected deposits of the segment leaving vertex v on every target; returns how many were written.
 
     v (scene units) with unit normal n (for Lambertian emission: the emitter's
@@ -223,16 +256,30 @@ def next_event(vx, vy, vz, nx, ny, nz, mode, m, stat, w, state, scene, occluded_
         u1, u2, u3 = uniform(state), uniform(state), uniform(state)
         if d2c < tgt_near2[t]:
             continue          # too close: 1/d² would be heavy-tailed; this segment's crossings are counted
-        # (out_k, out_w hold at most 2 per iteration: size them 2 * (picks + n_targets))
+        # (out_k, out_w hold at most 3 per iteration: size them 3 * (picks + n_targets))
+        if control and tscale != 1.0 and kind <= T_QUAD:     # a pick carries the difference to γ
+            gam, cg = point_view(t, vx, vy, vz, nx, ny, nz, mode, tgt_ref, tgt_area, tgt_center, sens_normal)
+            if gam > 0.0:
+                out_k[n_out] = tgt_row[t]
+                for b in range(n_bands):
+                    f = 1.0 if mode != V_SURFACE else mat_prob[m, DIFFUSE_R if cg > 0.0 else DIFFUSE_T, b]
+                    out_w[n_out, b] = -w[b] * gam * f * tscale
+                n_out += 1
         g = -1
         omega = 0.0
         if kind == T_DISC:
             s = tgt_ref[t]
             mx, my, mz = sens_normal[s, 0], sens_normal[s, 1], sens_normal[s, 2]
-            px, py, pz, omega = disc_point_by_solid_angle(vx, vy, vz, s, u1, u2, sens_center, sens_normal,
-                                                          sens_radius)
-            if omega == 0.0:
-                continue     # behind the sensor's plane: cannot cross it from the front
+            if d2c > (FAR * sens_radius[s]) ** 2:    # far: uniform on the disc, A |cos θ_x| / d² nearly constant
+                if (vx - sens_center[s, 0]) * mx + (vy - sens_center[s, 1]) * my + (vz - sens_center[s, 2]) * mz <= 0.0:
+                    continue
+                px, py, pz = sensor_point(kind, s, u1, u2, u3, sens_center, sens_normal, sens_radius, sens_corners)
+                kind = T_QUAD      # from here on: a point drawn by area
+            else:
+                px, py, pz, omega = disc_point_by_solid_angle(vx, vy, vz, s, u1, u2, sens_center, sens_normal,
+                                                              sens_radius)
+                if omega == 0.0:
+                    continue     # behind the sensor's plane: cannot cross it from the front
         elif kind == T_QUAD:
             s = tgt_ref[t]
             mx, my, mz = sens_normal[s, 0], sens_normal[s, 1], sens_normal[s, 2]

@@ -46,7 +46,7 @@ from .embree import (ARGS, CAND, CAND_CAP, CAND_COUNT, DIR, GEOM_ID, HIT_U, HIT_
                      PRIM_ID, RAYHIT, TFAR, TNEAR)
 from .ptr import call_ptr3, load_f32, load_i64, load_u32, store_f32, store_i64, store_u32
 from .rng import seed_stream, uniform
-from .nee import (INV_4PI, V_ISOTROPIC, V_LAMBERT, V_SURFACE, disc_point_by_solid_angle, next_event, sensor_point,
+from .nee import (point_view, view_factors, INV_4PI, V_ISOTROPIC, V_LAMBERT, V_SURFACE, disc_point_by_solid_angle, next_event, sensor_point,
                   set_ray, visible)
 from .sampling import cosine_hemisphere, mirror, phong_lobe, to_world, uniform_sphere
 
@@ -64,54 +64,125 @@ SENSOR_DISC, SENSOR_QUAD = 0, 1
 C_RAYS, C_CAND_OVERFLOW, C_SCRATCH_FLUSH, C_LOST, C_SHADOW = 0, 1, 2, 3, 4
 N_COUNTERS = 5
 
-HIT_CAP = 256          # per-photon tally events kept before a flush
+
 _TFAR_MAX = 3.0e38
 
 
 @njit(inline="always", cache=True)
-def _record(k, w, hit_k, hit_w, nh, tally, tally_sq, fate0, counters):
-    if nh == hit_k.shape[0]:
-        _flush(nh, hit_k, hit_w, tally, tally_sq, fate0)
-        counters[C_SCRATCH_FLUSH] += 1
-        nh = 0
-    hit_k[nh] = k
+def _record(k, w, acc, touched, rows, n_rows):
+    """Add weights ``w`` (B,) to this photon's row k; returns the number of rows the photon has touched."""
+    if touched[k] == 0:
+        touched[k] = 1
+        rows[n_rows] = k
+        n_rows += 1
     for b in range(w.shape[0]):     # explicit loops: slice assignment costs ~15% at 12 bands
-        hit_w[nh, b] = w[b]
-    return nh + 1
+        acc[k, b] += w[b]
+    return n_rows
 
 
 @njit(inline="always", cache=True)
-def _flush(nh, hit_k, hit_w, tally, tally_sq, fate0):
-    """Add one photon's contributions: sum per tally index, then add sums and products between bands.
+def _flush(n_rows, rows, touched, acc, tally, tally_sq, fate0, tot):
+    """Add one photon's contributions (its rows of ``acc``, in the order first touched): sums and products
+    between bands; clear them for the next photon.
 
-    Rows ``fate0 ..`` are fates; the last row receives the photon's total
-    deposit (closure).  ``hit_w`` has one row more than ``hit_k`` has entries:
-    that last row is this function's scratch for the total (no allocation per photon)."""
+    Rows ``fate0 ..`` are fates; the last row receives the photon's total deposit (closure), summed in
+    ``tot`` (B,) scratch."""
     total_row = tally.shape[0] - 1
-    n_bands = hit_w.shape[1]
-    tot = hit_w[hit_w.shape[0] - 1]
+    n_bands = acc.shape[1]
     tot[:] = 0.0
-    for a in range(nh):
-        k = hit_k[a]
+    for a in range(n_rows):
+        k = rows[a]
         if k < 0:
             continue
-        for a2 in range(a + 1, nh):
-            if hit_k[a2] == k:
-                for b in range(n_bands):
-                    hit_w[a, b] += hit_w[a2, b]
-                hit_k[a2] = -1
         for b in range(n_bands):
-            x = hit_w[a, b]
+            x = acc[k, b]
             tally[k, b] += x
             for b2 in range(n_bands):
-                tally_sq[k, b, b2] += x * hit_w[a, b2]
+                tally_sq[k, b, b2] += x * acc[k, b2]
             if k >= fate0:
                 tot[b] += x
-    if nh > 0:
+        for b in range(n_bands):
+            acc[k, b] = 0.0
+        touched[k] = 0
+    if n_rows > 0:
         for b in range(n_bands):
             tally[total_row, b] += tot[b]
             for b2 in range(n_bands):
                 tally_sq[total_row, b, b2] += tot[b] * tot[b2]
+
+
+@njit(cache=True, _nrt=False)
+def _control_deposits(vx, vy, vz, nx, ny, nz, mode, m, w, near, cv_center, cv_normal, cv_area, cv_thr, cv_runs,
+                      cv_plane, mat_prob, g_r, g_t, cv_acc):
+    """Add γ (:func:`kernel.nee.point_view`) of every sensor target, seen from v, to this photon's ``cv_acc``
+    (B, n) -- except where a pick of :func:`kernel.nee.next_event` would not serve it (inside an exclusion
+    radius, or a near disc with an event of its own: ``cv_thr[near]`` (2, n) holds those radii²).
+
+    Targets come in runs of one plane and normal (``cv_runs`` (r, 3): first, end, run's plane offset
+    n·c); a run whose plane v is behind is skipped whole (γ = 0 there).  Within a run the loop is
+    branch-free so that it vectorises: γ split by the side of v it leaves (``g_r``, ``g_t`` (n,)
+    scratch), then one pass per band."""
+    c0, c1 = view_factors(mode)
+    thr = cv_thr[near]
+    cx, cy, cz = cv_center[0], cv_center[1], cv_center[2]
+    mx, my, mz = cv_normal[0], cv_normal[1], cv_normal[2]
+    for r in range(cv_runs.shape[0]):
+        lo, n = cv_runs[r, 0], cv_runs[r, 1] - cv_runs[r, 0]
+        if lo < 0 or vx * mx[lo] + vy * my[lo] + vz * mz[lo] <= cv_plane[r]:
+            continue
+        for i in range(n):          # (indices from 0: no wrap-around test, so the loop vectorises)
+            t = lo + i
+            ex, ey, ez = cx[t] - vx, cy[t] - vy, cz[t] - vz
+            d2 = max(ex * ex + ey * ey + ez * ez, 1e-300)
+            hd = -(ex * mx[t] + ey * my[t] + ez * mz[t])
+            inv_d = 1.0 / math.sqrt(d2)
+            cos_v = (ex * nx + ey * ny + ez * nz) * inv_d
+            g = cv_area[t] * hd * (inv_d * inv_d * inv_d) * (c0 + c1 * math.fabs(cos_v))
+            g = g * np.float64((d2 >= thr[t]) & (hd > 0.0))     # arithmetic, not branches: vectorises
+            up = np.float64(cos_v > 0.0)
+            g_r[t] = g * up
+            g_t[t] = g - g * up
+        for b in range(w.shape[0]):
+            if mode == V_SURFACE:
+                a_r, a_t = w[b] * mat_prob[m, DIFFUSE_R, b], w[b] * mat_prob[m, DIFFUSE_T, b]
+            elif mode == V_LAMBERT:
+                a_r, a_t = w[b], 0.0
+            else:
+                a_r, a_t = w[b], w[b]
+            acc = cv_acc[b]
+            for i in range(n):
+                t = lo + i
+                acc[t] += a_r * g_r[t] + a_t * g_t[t]
+
+
+@njit(cache=True, _nrt=False)
+def _flush_control(n_rows, rows, touched, acc, cv_acc, sensor_target, n_sens, cv_tally, cv_sq):
+    """End of a photon that made control deposits: fold its other deposits on the sensor targets' rows
+    into ``cv_acc`` (B, n), add it to the chunk's ``cv_tally`` (B, n) and ``cv_sq`` (B, B, n), and clear
+    it; the photon's other rows are left to :func:`_flush` (those folded become -1 in ``rows``)."""
+    n_bands = acc.shape[1]
+    n = cv_acc.shape[1]
+    for a in range(n_rows):
+        k = rows[a]
+        if k < n_sens and sensor_target[k] >= 0 and sensor_target[k] < n:
+            t = sensor_target[k]
+            for b in range(n_bands):
+                cv_acc[b, t] += acc[k, b]
+                acc[k, b] = 0.0
+            touched[k] = 0
+            rows[a] = -1
+    for b in range(n_bands):         # contiguous over the targets: vectorises
+        x, tb = cv_acc[b], cv_tally[b]
+        for b2 in range(n_bands):
+            y, sq = cv_acc[b2], cv_sq[b, b2]
+            for t in range(n):
+                sq[t] += x[t] * y[t]
+        for t in range(n):
+            tb[t] += x[t]
+    for b in range(n_bands):
+        x = cv_acc[b]
+        for t in range(n):
+            x[t] = 0.0
 
 
 @njit(inline="always", cache=True)
@@ -436,7 +507,7 @@ def trace_chunk(scene, intersect_fn, scratch, seed, first, count,
                 near_r2, sensor_target, receiver_target,
                 tri_verts, mat_nee, emit_nee, picks, cop_start, cop_list, cop_box, cop_free, tri_two_sided,
                 img_picks, tri_plane, mir_point, mir_normal, mir_list, mir_cdf, mir_inv_p, mir_on, mir_box,
-                mir_one_sided, tally, tally_sq, counters, nee_stats):
+                mir_one_sided, control, tally, tally_sq, counters, nee_stats):
     """Trace photons ``first .. first+count-1``; add what they do to the output arrays.
 
     Parameters (T triangles, M materials, B bands, S sensors, E emitter elements,
@@ -514,10 +585,47 @@ def trace_chunk(scene, intersect_fn, scratch, seed, first, count,
     dep = np.empty(n_bands)
     n_tgt = tgt_kind.shape[0]
     contrib = np.empty(n_bands)
-    out_k = np.empty(2 * (n_tgt + picks) + 1, dtype=np.int64)     # near discs + picks, 2 deposits each
-    out_w = np.empty((2 * (n_tgt + picks) + 1, n_bands))
-    hit_k = np.empty(HIT_CAP, dtype=np.int64)
-    hit_w = np.empty((HIT_CAP + 1, n_bands))     # + the flush's scratch row
+    out_k = np.empty(3 * (n_tgt + picks) + 1, dtype=np.int64)     # near discs + picks, 3 deposits each
+    out_w = np.empty((3 * (n_tgt + picks) + 1, n_bands))
+    control = control and nee_sensors and 0 < picks < n_tgt
+    n_cv = 0            # sensor targets come first
+    while control and n_cv < n_tgt and tgt_kind[n_cv] <= 1:
+        n_cv += 1
+    cv_center = np.empty((3, n_cv))
+    cv_normal = np.empty((3, n_cv))
+    cv_area = np.empty(n_cv)
+    cv_thr = np.empty((2, n_cv))
+    cv_row = np.empty(n_cv, dtype=np.int64)
+    for t in range(n_cv):
+        for c in range(3):
+            cv_center[c, t] = tgt_center[t, c]
+            cv_normal[c, t] = sens_normal[tgt_ref[t], c]
+        cv_area[t] = tgt_area[t]
+        cv_thr[0, t] = tgt_near2[t]
+        cv_thr[1, t] = max(tgt_near2[t], near_r2[t])
+        cv_row[t] = tgt_row[t]
+    cv_runs = np.empty((n_cv, 2), dtype=np.int64)     # runs of targets on one plane with one normal:
+    cv_plane = np.empty(n_cv)                         # first, end; the plane's offset n·c
+    n_runs = 0
+    for t in range(n_cv):
+        off = cv_normal[0, t] * cv_center[0, t] + cv_normal[1, t] * cv_center[1, t] + cv_normal[2, t] * cv_center[2, t]
+        if n_runs > 0 and off == cv_plane[n_runs - 1] and cv_normal[0, t] == cv_normal[0, t - 1] \
+                and cv_normal[1, t] == cv_normal[1, t - 1] and cv_normal[2, t] == cv_normal[2, t - 1]:
+            cv_runs[n_runs - 1, 1] = t + 1
+        else:
+            cv_runs[n_runs, 0], cv_runs[n_runs, 1], cv_plane[n_runs] = t, t + 1, off
+            n_runs += 1
+    cv_runs = cv_runs[:n_runs]
+    cv_plane = cv_plane[:n_runs]
+    cv_acc = np.zeros((n_bands, n_cv))     # this photon's deposits on the sensor targets
+    cv_tally = np.zeros((n_bands, n_cv))   # and the chunk's sums (added to the tallies at its end)
+    cv_sq = np.zeros((n_bands, n_bands, n_cv))
+    g_r = np.empty(n_cv)
+    g_t = np.empty(n_cv)
+    acc = np.zeros((tally.shape[0], n_bands))     # this photon's sum per tally row
+    touched = np.zeros(tally.shape[0], dtype=np.uint8)
+    rows = np.empty(tally.shape[0], dtype=np.int64)     # the rows it touched, in order
+    tot = np.empty(n_bands)
     seen = np.empty(CAND_CAP, dtype=np.int64)
     rh = scratch + RAYHIT
     args = scratch + ARGS
@@ -531,19 +639,24 @@ def trace_chunk(scene, intersect_fn, scratch, seed, first, count,
         ox, oy, oz, dx, dy, dz, enx, eny, enz, emode, oscale = _emit(e, emit_kind, emit_data, state, offset_rel)
         w[:] = 1.0
         nh = 0
+        cv_used = False
         depth = 0
         after_diffuse = False   # does the current segment start at a next-event vertex?
         vx0, vy0, vz0 = ox, oy, oz   # that vertex
         seg_plane = -1          # the current segment leaves this mirror plane, reflected, after a next-event vertex
         wx, wy, wz = ox, oy, oz  # that next-event vertex
         if n_tgt > 0 and emit_nee[e] != 0:
+            if control:
+                _control_deposits(ox, oy, oz, enx, eny, enz, emode, 0, w, 0, cv_center, cv_normal, cv_area, cv_thr,
+                                  cv_runs, cv_plane, mat_prob, g_r, g_t, cv_acc)
+                cv_used = True
             n_out = next_event(ox, oy, oz, enx, eny, enz, emode, 0, n_mat + e, w, state, scene, occluded_fn, scratch,
                                offset_rel, tgt_kind, tgt_row, tgt_abs_row, tgt_ref, tgt_first, tgt_count, tgt_area,
                                tgt_center, tgt_near2, sens_center, sens_normal, sens_radius, sens_corners, nee_tri, nee_cdf, tri_verts,
                                tri_normal, tri_mat, mat_prob, contrib, out_k, out_w, counters, nee_stats,
-                               picks, oscale, -1, near_start, near_list, near_r2)
+                               picks, oscale, -1, near_start, near_list, near_r2, control)
             for a in range(n_out):
-                nh = _record(out_k[a], out_w[a], hit_k, hit_w, nh, tally, tally_sq, fate0, counters)
+                nh = _record(out_k[a], out_w[a], acc, touched, rows, nh)
             n_img = _n_images(img_picks, state) if img_on and max_depth > 0 else 0
             if n_img > 0:
                 n_out = _image_event(ox, oy, oz, enx, eny, enz, emode, 0, w, state, scene, intersect_fn, occluded_fn,
@@ -554,7 +667,7 @@ def trace_chunk(scene, intersect_fn, scratch, seed, first, count,
                                      mir_cdf, mir_inv_p, mir_box, mir_one_sided, n_img, img_picks, contrib, out_k,
                                      out_w, counters, nee_stats, stat_planes)
                 for a in range(n_out):
-                    nh = _record(out_k[a], out_w[a], hit_k, hit_w, nh, tally, tally_sq, fate0, counters)
+                    nh = _record(out_k[a], out_w[a], acc, touched, rows, nh)
             after_diffuse = True
         while True:
             skip_sensors = after_diffuse and nee_sensors
@@ -597,10 +710,10 @@ def trace_chunk(scene, intersect_fn, scratch, seed, first, count,
                                              tgt_center, tgt_img_near2)
                 if counted and _inside(s, ox + ts * dx, oy + ts * dy, oz + ts * dz,
                                        sens_kind, sens_center, sens_radius, sens_corners, sens_normal):
-                    nh = _record(s, w, hit_k, hit_w, nh, tally, tally_sq, fate0, counters)
+                    nh = _record(s, w, acc, touched, rows, nh)
 
             if gid == INVALID_ID:
-                nh = _record(f_escaped, w, hit_k, hit_w, nh, tally, tally_sq, fate0, counters)
+                nh = _record(f_escaped, w, acc, touched, rows, nh)
                 break
             tri = load_u32(rh + PRIM_ID) + geom_offset[gid]
             # the hit point from Embree's barycentrics on our float64 triangle: on its plane to float64
@@ -614,7 +727,7 @@ def trace_chunk(scene, intersect_fn, scratch, seed, first, count,
             pz = b0 * tri_verts[tri, 0, 2] + bu * tri_verts[tri, 1, 2] + bv * tri_verts[tri, 2, 2]
             if not (math.isfinite(px) and math.isfinite(py) and math.isfinite(pz)):
                 counters[C_LOST] += 1
-                nh = _record(f_lost, w, hit_k, hit_w, nh, tally, tally_sq, fate0, counters)
+                nh = _record(f_lost, w, acc, touched, rows, nh)
                 break
             if cop_start[tri + 1] > cop_start[tri]:   # coincident surfaces: a fair choice, not float rounding
                 tri = _pick_coplanar(tri, px, py, pz, dx, dy, dz, cop_start, cop_list, cop_box, cop_free,
@@ -635,24 +748,29 @@ def trace_chunk(scene, intersect_fn, scratch, seed, first, count,
             rec_analog = rec >= 0 and _counted(skip_receivers, receiver_target[rec] if skip_receivers else -1,
                                                vx0, vy0, vz0, tgt_center, tgt_near2)
             if rec_analog:
-                nh = _record(n_sens + rec, w, hit_k, hit_w, nh, tally, tally_sq, fate0, counters)
+                nh = _record(n_sens + rec, w, acc, touched, rows, nh)
             if depth >= max_depth:
-                nh = _record(f_cut, w, hit_k, hit_w, nh, tally, tally_sq, fate0, counters)
+                nh = _record(f_cut, w, acc, touched, rows, nh)
                 break
             if expected_absorption:   # deposit what this surface absorbs on average
                 for b in range(n_bands):
                     dep[b] = w[b] * mat_prob[m, ABSORB, b]
-                nh = _record(fate0 + m, dep, hit_k, hit_w, nh, tally, tally_sq, fate0, counters)
+                nh = _record(fate0 + m, dep, acc, touched, rows, nh)
                 if rec_analog:
-                    nh = _record(absorbed0 + rec, dep, hit_k, hit_w, nh, tally, tally_sq, fate0, counters)
+                    nh = _record(absorbed0 + rec, dep, acc, touched, rows, nh)
             if n_tgt > 0 and mat_nee[m] != 0:   # expected light of the next segment if it leaves diffusely
+                if control:
+                    _control_deposits(px, py, pz, nx, ny, nz, V_SURFACE, m, w,
+                                      1 if near_start[tri + 1] > near_start[tri] else 0, cv_center, cv_normal,
+                                      cv_area, cv_thr, cv_runs, cv_plane, mat_prob, g_r, g_t, cv_acc)
+                    cv_used = True
                 n_out = next_event(px, py, pz, nx, ny, nz, V_SURFACE, m, m, w, state, scene, occluded_fn, scratch,
                                    offset_rel, tgt_kind, tgt_row, tgt_abs_row, tgt_ref, tgt_first, tgt_count,
                                    tgt_area, tgt_center, tgt_near2, sens_center, sens_normal, sens_radius, sens_corners, nee_tri, nee_cdf,
                                    tri_verts, tri_normal, tri_mat, mat_prob, contrib, out_k, out_w, counters,
-                                   nee_stats, picks, pscale + oscale, tri, near_start, near_list, near_r2)
+                                   nee_stats, picks, pscale + oscale, tri, near_start, near_list, near_r2, control)
                 for a in range(n_out):
-                    nh = _record(out_k[a], out_w[a], hit_k, hit_w, nh, tally, tally_sq, fate0, counters)
+                    nh = _record(out_k[a], out_w[a], acc, touched, rows, nh)
                 # and through a mirror (if not cut at that mirror); the call itself is not free: only if drawn
                 n_img = _n_images(img_picks, state) if img_on and depth + 1 < max_depth else 0
                 if n_img > 0:
@@ -665,7 +783,7 @@ def trace_chunk(scene, intersect_fn, scratch, seed, first, count,
                                          mir_inv_p, mir_box, mir_one_sided, n_img, img_picks, contrib, out_k,
                                          out_w, counters, nee_stats, stat_planes)
                     for a in range(n_out):
-                        nh = _record(out_k[a], out_w[a], hit_k, hit_w, nh, tally, tally_sq, fate0, counters)
+                        nh = _record(out_k[a], out_w[a], acc, touched, rows, nh)
 
             # one event, drawn with probabilities q shared by the bands; weights carry the rest
             u = uniform(state)
@@ -679,8 +797,8 @@ def trace_chunk(scene, intersect_fn, scratch, seed, first, count,
                 w[b] *= mat_prob[m, ev, b] / q
             if ev == ABSORB:
                 if rec_analog:
-                    nh = _record(absorbed0 + rec, w, hit_k, hit_w, nh, tally, tally_sq, fate0, counters)
-                nh = _record(fate0 + m, w, hit_k, hit_w, nh, tally, tally_sq, fate0, counters)
+                    nh = _record(absorbed0 + rec, w, acc, touched, rows, nh)
+                nh = _record(fate0 + m, w, acc, touched, rows, nh)
                 break
             depth += 1
             pl = tri_plane[tri]
@@ -703,9 +821,8 @@ def trace_chunk(scene, intersect_fn, scratch, seed, first, count,
                     dx, dy, dz = phong_lobe(rx, ry, rz, mat_phong[m], u1, u2)
                     if dx * nx + dy * ny + dz * nz <= 0.0:   # lobe below the surface: absorbed there
                         if rec >= 0:
-                            nh = _record(absorbed0 + rec, w, hit_k, hit_w, nh, tally, tally_sq, fate0,
-                                         counters)
-                        nh = _record(fate0 + m, w, hit_k, hit_w, nh, tally, tally_sq, fate0, counters)
+                            nh = _record(absorbed0 + rec, w, acc, touched, rows, nh)
+                        nh = _record(fate0 + m, w, acc, touched, rows, nh)
                         break
                 side = 1.0
             elif ev == DIFFUSE_T:
@@ -717,4 +834,11 @@ def trace_chunk(scene, intersect_fn, scratch, seed, first, count,
             dx, dy, dz = dx * inv, dy * inv, dz * inv
             eps = side * offset_rel * (pscale + oscale)
             ox, oy, oz = px + eps * nx, py + eps * ny, pz + eps * nz
-        _flush(nh, hit_k, hit_w, tally, tally_sq, fate0)
+        if cv_used:
+            _flush_control(nh, rows, touched, acc, cv_acc, sensor_target, n_sens, cv_tally, cv_sq)
+        _flush(nh, rows, touched, acc, tally, tally_sq, fate0, tot)
+    for t in range(n_cv):
+        for b in range(n_bands):
+            tally[cv_row[t], b] += cv_tally[b, t]
+            for b2 in range(n_bands):
+                tally_sq[cv_row[t], b, b2] += cv_sq[b, b2, t]

@@ -209,6 +209,7 @@ class KernelScene:
         # next-event tallies (estimator "nee"): which targets get expected values instead of counts
         self.nee_sensors = self.nee_receivers = estimator == "nee"
         self.nee_picks = 1          # targets per next event, drawn at random (0: all of them)
+        self.nee_control = True     # with picks: γ of every sensor at every vertex, picks carry the rest
         self.nee_receiver_mask = None   # (R,) bool: receivers that are next-event targets (None: all)
         self.nee_images = 0.25      # next events through a perfect mirror per vertex, on average (sensors; 0: none)
         tris = chamber.triangles
@@ -415,7 +416,7 @@ class KernelScene:
                     self.mat_nee, self.emit_nee, self.nee_picks, self.cop_start, self.cop_list, self.cop_box,
                     self.cop_free, self.tri_two_sided,
                     float(self.nee_images) if self.nee_sensors else 0.0, self.tri_plane, self.mir_point, self.mir_normal,
-                    *self._mirror_draw(), self.mir_on, self.mir_box, self.mir_one_sided,
+                    *self._mirror_draw(), self.mir_on, self.mir_box, self.mir_one_sided, bool(self.nee_control),
                     *out)
         return out
 
