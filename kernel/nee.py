@@ -184,6 +184,25 @@ def view_factors(mode):
     return 0.0, 1.0 / math.pi
 
 
+_ZERO32 = np.float32(0.0)
+_ONE32 = np.float32(1.0)
+_TINY32 = np.float32(1e-30)
+
+
+@njit(inline="always", cache=True)
+def _gamma32(vx, vy, vz, nx, ny, nz, c0, c1, cx, cy, cz, mx, my, mz, area):
+    """γ of a sensor of centre c, unit normal m and area A seen from v (unit normal n), in float32:
+    A · cos θ_c / d² · (c0 + c1 |cos θ_v|), or ≤ 0 when v is behind the sensor's plane (all arguments
+    float32: the same arithmetic in :func:`point_view` and the vectorised loop of
+    :func:`kernel.trace._control_deposits`, so both get the same bits)."""
+    ex, ey, ez = cx - vx, cy - vy, cz - vz
+    d2 = max(ex * ex + ey * ey + ez * ez, _TINY32)
+    hd = -(ex * mx + ey * my + ez * mz)                    # h · d
+    inv_d = _ONE32 / math.sqrt(d2)
+    cos_v = (ex * nx + ey * ny + ez * nz) * inv_d
+    return area * hd * (inv_d * inv_d * inv_d) * (c0 + c1 * math.fabs(cos_v))
+
+
 @njit(inline="always", cache=True)
 def point_view(t, vx, vy, vz, nx, ny, nz, mode, tgt_ref, tgt_area, tgt_center, sens_normal):
     """Sensor target t's next event from v as if t were a point at its centre: ``(γ, cos_v)``.
@@ -191,20 +210,24 @@ def point_view(t, vx, vy, vz, nx, ny, nz, mode, tgt_ref, tgt_area, tgt_center, s
     γ = A · cos θ_c / d_c² · p(ω_c), without the band factor of a surface vertex (its ``P_dR,b`` for
     cos_v > 0, ``P_dT,b`` below); 0 where v is behind the sensor's plane (so is the true value).  The
     control variate of :func:`next_event`: deposited to every sensor at every vertex
-    (:func:`kernel.trace._control_deposits`, the same arithmetic), and subtracted from each pick, so that
-    a pick only carries the difference between the true, occluded value and γ."""
+    (:func:`kernel.trace._control_deposits`), and subtracted from each pick, so that a pick only carries
+    the difference between the true, occluded value and γ.  Computed in float32 (:func:`_gamma32`) from
+    the float32 values of the same arrays as the deposits, so that the two cancel exactly on average."""
     s = tgt_ref[t]
-    ex, ey, ez = tgt_center[t, 0] - vx, tgt_center[t, 1] - vy, tgt_center[t, 2] - vz
-    d2 = max(ex * ex + ey * ey + ez * ez, 1e-300)
-    hd = -(ex * sens_normal[s, 0] + ey * sens_normal[s, 1] + ez * sens_normal[s, 2])     # h · d
-    if not hd > 0.0:
-        return 0.0, 0.0
-    inv_d = 1.0 / math.sqrt(d2)
-    cos_v = (ex * nx + ey * ny + ez * nz) * inv_d
-    if mode == V_LAMBERT and cos_v <= 0.0:
-        return 0.0, cos_v
     c0, c1 = view_factors(mode)
-    return tgt_area[t] * hd * (inv_d * inv_d * inv_d) * (c0 + c1 * math.fabs(cos_v)), cos_v
+    f32 = np.float32
+    x32, y32, z32 = f32(vx), f32(vy), f32(vz)
+    n32x, n32y, n32z = f32(nx), f32(ny), f32(nz)
+    cx, cy, cz = f32(tgt_center[t, 0]), f32(tgt_center[t, 1]), f32(tgt_center[t, 2])
+    g = _gamma32(x32, y32, z32, n32x, n32y, n32z, f32(c0), f32(c1), cx, cy, cz, f32(sens_normal[s, 0]),
+                 f32(sens_normal[s, 1]), f32(sens_normal[s, 2]), f32(tgt_area[t]))
+    if not g > _ZERO32:
+        return 0.0, 0.0
+    ex, ey, ez = cx - x32, cy - y32, cz - z32
+    up = ex * n32x + ey * n32y + ez * n32z > _ZERO32
+    if mode == V_LAMBERT and not up:
+        return 0.0, -1.0
+    return float(g), (1.0 if up else -1.0)
 
 
 @njit(cache=True, _nrt=False)

@@ -46,7 +46,7 @@ from .embree import (ARGS, CAND, CAND_CAP, CAND_COUNT, DIR, GEOM_ID, HIT_U, HIT_
                      PRIM_ID, RAYHIT, TFAR, TNEAR)
 from .ptr import call_ptr3, load_f32, load_i64, load_u32, store_f32, store_i64, store_u32
 from .rng import seed_stream, uniform
-from .nee import (point_view, view_factors, INV_4PI, V_ISOTROPIC, V_LAMBERT, V_SURFACE, disc_point_by_solid_angle, next_event, sensor_point,
+from .nee import (_ZERO32, _gamma32, point_view, view_factors, INV_4PI, V_ISOTROPIC, V_LAMBERT, V_SURFACE, disc_point_by_solid_angle, next_event, sensor_point,
                   set_ray, visible)
 from .sampling import cosine_hemisphere, mirror, phong_lobe, to_world, uniform_sphere
 
@@ -123,23 +123,23 @@ def _control_deposits(vx, vy, vz, nx, ny, nz, mode, m, w, near, cv_center, cv_no
     branch-free so that it vectorises: γ split by the side of v it leaves (``g_r``, ``g_t`` (n,)
     scratch), then one pass per band."""
     c0, c1 = view_factors(mode)
+    c0, c1 = np.float32(c0), np.float32(c1)
     thr = cv_thr[near]
     cx, cy, cz = cv_center[0], cv_center[1], cv_center[2]
     mx, my, mz = cv_normal[0], cv_normal[1], cv_normal[2]
+    vx, vy, vz = np.float32(vx), np.float32(vy), np.float32(vz)
+    nx, ny, nz = np.float32(nx), np.float32(ny), np.float32(nz)
     for r in range(cv_runs.shape[0]):
         lo, n = cv_runs[r, 0], cv_runs[r, 1] - cv_runs[r, 0]
         if lo < 0 or vx * mx[lo] + vy * my[lo] + vz * mz[lo] <= cv_plane[r]:
             continue
         for i in range(n):          # (indices from 0: no wrap-around test, so the loop vectorises)
             t = lo + i
+            g = _gamma32(vx, vy, vz, nx, ny, nz, c0, c1, cx[t], cy[t], cz[t], mx[t], my[t], mz[t], cv_area[t])
             ex, ey, ez = cx[t] - vx, cy[t] - vy, cz[t] - vz
-            d2 = max(ex * ex + ey * ey + ez * ez, 1e-300)
-            hd = -(ex * mx[t] + ey * my[t] + ez * mz[t])
-            inv_d = 1.0 / math.sqrt(d2)
-            cos_v = (ex * nx + ey * ny + ez * nz) * inv_d
-            g = cv_area[t] * hd * (inv_d * inv_d * inv_d) * (c0 + c1 * math.fabs(cos_v))
-            g = g * np.float64((d2 >= thr[t]) & (hd > 0.0))     # arithmetic, not branches: vectorises
-            up = np.float64(cos_v > 0.0)
+            ok = (ex * ex + ey * ey + ez * ez >= thr[t]) & (g > _ZERO32)
+            g = g * np.float32(ok)     # arithmetic, not branches: vectorises
+            up = np.float32(ex * nx + ey * ny + ez * nz > _ZERO32)
             g_r[t] = g * up
             g_t[t] = g - g * up
         for b in range(w.shape[0]):
@@ -591,10 +591,10 @@ def trace_chunk(scene, intersect_fn, scratch, seed, first, count,
     n_cv = 0            # sensor targets come first
     while control and n_cv < n_tgt and tgt_kind[n_cv] <= 1:
         n_cv += 1
-    cv_center = np.empty((3, n_cv))
-    cv_normal = np.empty((3, n_cv))
-    cv_area = np.empty(n_cv)
-    cv_thr = np.empty((2, n_cv))
+    cv_center = np.empty((3, n_cv), dtype=np.float32)      # float32: γ's loop runs 16 wide
+    cv_normal = np.empty((3, n_cv), dtype=np.float32)
+    cv_area = np.empty(n_cv, dtype=np.float32)
+    cv_thr = np.empty((2, n_cv), dtype=np.float32)
     cv_row = np.empty(n_cv, dtype=np.int64)
     for t in range(n_cv):
         for c in range(3):
@@ -605,7 +605,7 @@ def trace_chunk(scene, intersect_fn, scratch, seed, first, count,
         cv_thr[1, t] = max(tgt_near2[t], near_r2[t])
         cv_row[t] = tgt_row[t]
     cv_runs = np.empty((n_cv, 2), dtype=np.int64)     # runs of targets on one plane with one normal:
-    cv_plane = np.empty(n_cv)                         # first, end; the plane's offset n·c
+    cv_plane = np.empty(n_cv, dtype=np.float32)       # first, end; the plane's offset n·c
     n_runs = 0
     for t in range(n_cv):
         off = cv_normal[0, t] * cv_center[0, t] + cv_normal[1, t] * cv_center[1, t] + cv_normal[2, t] * cv_center[2, t]
@@ -620,8 +620,8 @@ def trace_chunk(scene, intersect_fn, scratch, seed, first, count,
     cv_acc = np.zeros((n_bands, n_cv))     # this photon's deposits on the sensor targets
     cv_tally = np.zeros((n_bands, n_cv))   # and the chunk's sums (added to the tallies at its end)
     cv_sq = np.zeros((n_bands, n_bands, n_cv))
-    g_r = np.empty(n_cv)
-    g_t = np.empty(n_cv)
+    g_r = np.empty(n_cv, dtype=np.float32)
+    g_t = np.empty(n_cv, dtype=np.float32)
     acc = np.zeros((tally.shape[0], n_bands))     # this photon's sum per tally row
     touched = np.zeros(tally.shape[0], dtype=np.uint8)
     rows = np.empty(tally.shape[0], dtype=np.int64)     # the rows it touched, in order

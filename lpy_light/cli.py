@@ -80,9 +80,12 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--quiet", action="store_true", help="no progress lines")
     r.add_argument("--nee-picks", type=int, default=1, metavar="K",
                    help="with --estimator nee: targets per next event, drawn at random (default 1; 0 = all)")
-    r.add_argument("--nee-images", type=float, default=0.25, metavar="K",
+    r.add_argument("--nee-images", type=float, default=0.5, metavar="K",
                    help="with --estimator nee: next events through a perfect mirror per vertex, on average (default "
-                        "0.25; 0 = none: light whose last bounce is specular is then counted)")
+                        "0.5; 0 = none: light whose last bounce is specular is then counted)")
+    r.add_argument("--no-nee-control", action="store_true",
+                   help="with --estimator nee: no control variate (each sensor's point-source value deposited at "
+                        "every vertex, picks carrying only the difference); for comparisons")
     r.add_argument("--calibrate", metavar="FILE", default=None,
                    help="csv of measured sensors (x,y,z or sensor, and one column per band, µmol m-2 s-1): "
                         "ppfd scaled per band by least squares on them (overrides the scene's 'calibration')")
@@ -124,6 +127,7 @@ def cmd_run(args) -> int:
     if not 0 <= args.nee_images <= 64:
         raise InputError("--nee-images must be in 0..64")
     kscene.nee_images = args.nee_images
+    kscene.nee_control = not args.no_nee_control
     if args.estimator == "nee":
         kscene.prune_next_events(threads=args.threads)
     stop, tracing = threading.Event(), [True]
@@ -155,7 +159,7 @@ def cmd_run(args) -> int:
                                    chamber.spectrum, chamber.bands)
     extra, calibration, comparison = _after_run(args, chamber, result, norm, measured, ref, ref_band)
     if args.estimator == "nee":
-        extra["next_events"] = {"picks": kscene.nee_picks, "images": kscene.nee_images,
+        extra["next_events"] = {"picks": kscene.nee_picks, "images": kscene.nee_images, "control": kscene.nee_control,
                                 "mirror_planes": int(kscene.mir_on.sum()),
                                 "sources_off": [m.name for m, on in zip(kscene.materials, kscene.mat_nee) if not on]}
     if calibration is not None:

@@ -14,9 +14,14 @@ from lpy_light.scene import load_scene
 N_SEC2 = 999_999_936
 
 
+SEC2_OFFSET = 0.005     # the 1e8 criterion's bound on |bias|: the full chamber sits -0.44 % ± 0.05 % from SEC2
+
+
 def _ok(c, min_within=0.97, max_bias_sigmas=4.0):
-    """The fast criterion: most sensors within 4σ and no mean bias beyond 4 of its σ."""
-    return c.within_4sigma >= min_within and abs(c.bias) < max_bias_sigmas * c.bias_std
+    """The fast criterion: most sensors within 4σ and no mean bias beyond 4 of its σ plus the 0.5 % that the
+    1e8 criterion allows (with next events' control variate, 1e6 photons resolve the full chamber's
+    -0.44 % offset from SEC2, measured at 1e8 photons: docs/validation.md)."""
+    return c.within_4sigma >= min_within and abs(c.bias) < max_bias_sigmas * c.bias_std + SEC2_OFFSET
 
 
 # ---------------------------------------------------------------------------------------------
@@ -77,7 +82,7 @@ def full_1e6():
 def test_full_chamber_1e6_agrees_with_sec2(full_1e6):
     c = full_1e6["sec2"]
     assert c.within_4sigma >= 0.97, c.line()
-    assert abs(c.bias) < 4 * c.bias_std, c.line()
+    assert abs(c.bias) < 4 * c.bias_std + SEC2_OFFSET, c.line()
     assert c.rms < 1.2 * c.rms_noise, c.line()          # the spread is the noise
     assert full_1e6["photon_mapping"] is not None
 
