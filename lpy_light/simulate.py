@@ -307,7 +307,7 @@ class KernelScene:
         self.targets = tuple(targets) + (sensor_target, receiver_target)
 
     def prune_next_events(self, photons: int = 8192, max_share: float = 1e-3, seed: int = 987654321,
-                          threads=None) -> dict:
+                          threads=None, min_plane_share: float = 0.01) -> dict:
         """Switch off next events from vertices whose shadow rays bring (almost) nothing.
 
         A pilot run sums, per material and per emitter element, the shadow rays
@@ -316,6 +316,10 @@ class KernelScene:
         weight they carry stays below ``max_share`` of the total — e.g. lamps
         and mirrors inside a lamp box behind a diffuser, whose shadow rays are
         all blocked.  Either choice is unbiased; this only saves shadow rays.
+        Mirror planes are also switched off when they brought less than
+        ``min_plane_share`` of the light of all next events through mirrors: a
+        plane drawn rarely but able to light a sensor makes rare, very large
+        deposits (1 / its draw probability), worse than counting its light.
         Returns ``{name: (share of shadow rays, share of deposit)}`` of the pilot
         and the names switched off under ``"off"``.
         """
@@ -344,6 +348,9 @@ class KernelScene:
         E = len(self.emit_nee)
         self.mat_nee = np.ascontiguousarray(on[:M], dtype=np.uint8)
         self.emit_nee = np.ascontiguousarray(on[M:M + E], dtype=np.uint8)
+        w_planes = weight[M + E:]
+        if w_planes.sum() > 0:
+            on[M + E:] &= w_planes >= min_plane_share * w_planes.sum()
         self.mir_on = np.ascontiguousarray(on[M + E:], dtype=np.uint8)
         # planes in use are then drawn in proportion to what they brought in the pilot, mixed with a
         # uniform share so that none is starved (any positive probabilities keep the events unbiased)

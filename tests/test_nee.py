@@ -279,3 +279,19 @@ def test_control_variate_is_unbiased_and_lowers_the_variance(tmp_path):
     assert np.all(np.abs(z) < 4), z
     ratio = np.mean((sb[:, 0] / b[:, 0]) ** 2) / np.mean((sa[:, 0] / a[:, 0]) ** 2)
     assert ratio < 0.6, ratio
+
+
+def test_pruning_drops_mirror_planes_that_bring_little(room):
+    """Planes that brought < 1 % of the light through mirrors in the pilot are switched off (their light is
+    counted); those kept brought ≥ 1 % each, and the silver mirror, which lights sensors, is kept."""
+    chamber, _ = room
+    ks = simulate.KernelScene(chamber, "nee")
+    report = ks.prune_next_events(photons=8192, max_share=0.0)
+    planes = {k: v for k, v in report.items() if k.startswith("mirror plane")}
+    kept = [k for k in planes if k not in report["off"]]
+    share = {k: planes[k][1] for k in planes}
+    total = sum(share.values())
+    assert kept and all(share[k] >= 0.01 * total for k in kept)
+    assert all(share[k] < 0.01 * total for k in planes if k in report["off"])
+    silver = [i for i, x in enumerate(ks.mir_point) if abs(x[0] - 990) < 1e-6 and abs(ks.mir_normal[i][0]) == 1]
+    assert silver and all(ks.mir_on[i] for i in silver)
