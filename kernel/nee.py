@@ -280,7 +280,7 @@ def next_event(vx, vy, vz, nx, ny, nz, mode, m, stat, w, state, scene, occluded_
         if d2c < tgt_near2[t]:
             continue          # too close: 1/d² would be heavy-tailed; this segment's crossings are counted
         # (out_k, out_w hold at most 3 per iteration: size them 3 * (picks + n_targets))
-        if control and tscale != 1.0 and kind <= T_QUAD:     # a pick carries the difference to γ
+        if control and scale != 1.0 and j >= n_near and kind <= T_QUAD:     # a pick (not a near disc's own event)
             gam, cg = point_view(t, vx, vy, vz, nx, ny, nz, mode, tgt_ref, tgt_area, tgt_center, sens_normal)
             if gam > 0.0:
                 out_k[n_out] = tgt_row[t]
