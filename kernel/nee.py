@@ -50,6 +50,7 @@ END_REL = 2.0 ** -13
 NEAR = 3.0       # exclusion radius around a quad or mesh target, in its bounding radii
 FAR = 10.0      # discs farther than FAR radii: points drawn by area
 NEAR_PICKED = 1.0    # discs nearer than this · radius · √(targets) get their own next event (:func:`near_discs`)
+ZONE_HEIGHT = 4.0    # a disc whose centre is nearer to a plane than this · its radius gets a zone on it
 INV_4PI = 1.0 / (4.0 * math.pi)
 
 # vertex modes
@@ -230,12 +231,22 @@ def point_view(t, vx, vy, vz, nx, ny, nz, mode, tgt_ref, tgt_area, tgt_center, s
     return float(g), (1.0 if up else -1.0)
 
 
+@njit(inline="always", cache=True)
+def _zone_of(t, pid, zone_start, zone_i):
+    """Has disc target t a zone (:func:`near_zones`) on plane ``pid``?"""
+    for z in range(zone_start[t], zone_start[t + 1]):
+        if zone_i[z, 1] == pid:
+            return True
+    return False
+
+
 @njit(cache=True, _nrt=False)
 def next_event(vx, vy, vz, nx, ny, nz, mode, m, stat, w, state, scene, occluded_fn, scratch, offset_rel,
                tgt_kind, tgt_row, tgt_abs_row, tgt_ref, tgt_first, tgt_count, tgt_area, tgt_center, tgt_near2,
                sens_center, sens_normal, sens_radius, sens_corners,
                nee_tri, nee_cdf, tri_verts, tri_normal, tri_mat, mat_prob, contrib, out_k, out_w, counters,
-               nee_stats, picks, vscale, vtri, near_start, near_list, near_r2, control):
+               nee_stats, picks, vscale, vtri, near_start, near_list, near_r2, control, cover_pid, zone_start,
+               zone_i):
     """Expected deposits of the segment leaving vertex v on every target; returns how many were written.
 
     v (scene units) with unit normal n (for Lambertian emission: the emitter's
@@ -254,6 +265,9 @@ def next_event(vx, vy, vz, nx, ny, nz, mode, m, stat, w, state, scene, occluded_
     √``near_r2[t]`` gets a next event of its own, unscaled, and is skipped by the picks: a random pick
     would deposit n_targets / picks times its large expected value, rarely (see :func:`near_discs`).
     Its candidates are ``near_list[near_start[vtri] : near_start[vtri + 1]]``.
+    ``cover_pid`` ≥ 0: v is a vertex on plane ``cover_pid`` reached straight from a next-event vertex, whose
+    zone events (:func:`kernel.trace._zone_event`) already served the near discs that have a zone on this
+    plane (``zone_i[zone_start[t] : zone_start[t + 1], 1]``): their own events are skipped here.
     """
     n_bands = w.shape[0]
     vmag = max(abs(vx), abs(vy), abs(vz), vscale)
@@ -275,6 +289,8 @@ def next_event(vx, vy, vz, nx, ny, nz, mode, m, stat, w, state, scene, occluded_
         d2c = ex * ex + ey * ey + ez * ez
         if n_near > 0 and (d2c < near_r2[t]) != (j < n_near):
             continue          # a near disc is served by its own event only; a listed one that is not near, by picks
+        if j < n_near and cover_pid >= 0 and _zone_of(t, cover_pid, zone_start, zone_i):
+            continue          # served by the zone events of the vertex this photon came from
         kind = tgt_kind[t]
         u1, u2, u3 = uniform(state), uniform(state), uniform(state)
         if d2c < tgt_near2[t]:
@@ -493,3 +509,62 @@ def near_discs(tri_verts, center, disc_radius, factor=NEAR_PICKED):
     near_start = np.zeros(len(tri_verts) + 1, np.int64)
     np.cumsum(np.bincount(tris, minlength=len(tri_verts)), out=near_start[1:])
     return near_start, np.ascontiguousarray(ts[order], dtype=np.int64), near_r2
+
+
+def near_zones(tri_verts, tri_pid, n_chamber, near_start, near_list, near_r2, center, disc_radius, normal):
+    """The zones of surface beside each disc target that a two-step next event serves (:func:`kernel.trace._zone_event`).
+
+    A disc beside a wall gets much of its light from the few centimetres of wall next to it, i.e. from
+    the rare photon vertices that land there, each making a large own next event: most of such a disc's
+    variance.  Zone (t, P) is the part of plane P (chamber triangles with id P in ``tri_pid``) inside
+    disc t's near sphere |y − c_t|² < ``near_r2[t]`` -- where a vertex makes an own next event for t --
+    for planes that the disc's centre is within :data:`ZONE_HEIGHT` disc radii of, and that reach in front
+    of the disc (an own event's variance grows as 1 / h² with the disc's height h over the plane; farther
+    planes' vertices are many for what they bring, and are left to the own events).
+    From every next-event vertex a point y of a random zone is drawn (density ∝ 1 / (r² + h²) about the
+    foot c' of the disc's centre on P, r ≤ ρ = √(near_r2 − h²), h = the centre's height over P, at least
+    the disc's radius), so that the light arriving there, and its own next event, are estimated from
+    every vertex instead of the few that land there; a real vertex in the zone reached straight from a
+    next-event vertex then skips that own event (:func:`next_event`, ``cover_pid``).
+
+    ``tri_verts`` (T, 3, 3); ``tri_pid`` (T,) plane ids (:func:`lpy_light.geometry.plane_ids`); only the
+    first ``n_chamber`` triangles (the chamber, not organs) make zones; ``near_*`` from :func:`near_discs`;
+    ``center`` (n, 3), ``disc_radius`` (n,) (0: not a disc) and unit ``normal`` (n, 3) of the targets.
+    Returns ``zone_f`` (Z, 14) float64 (c' (3), unit plane normal (3), e1 (3), e2 (3), h_s², L =
+    ln(1 + ρ²/h_s²)), ``zone_i`` (Z, 2) int64 (target, plane id), ``zone_start`` (n + 1,) int64 (zones of
+    target t: ``zone_start[t] : zone_start[t + 1]``, sorted by target).
+    """
+    rows_f, rows_i = [], []
+    n = len(center)
+    n_chamber = min(n_chamber, len(near_start) - 1)
+    count = np.diff(near_start[:n_chamber + 1])
+    tri_of = np.repeat(np.arange(n_chamber), count)           # (pair,) triangle; near_list gives the disc
+    disc_of = near_list[:near_start[n_chamber]]
+    pairs = {}                                                 # (disc, plane) -> one of its triangles
+    for k, t in zip(tri_of.tolist(), disc_of.tolist()):
+        if tri_pid[k] >= 0 and near_r2[t] > 0.0 and disc_radius[t] > 0.0:
+            pairs.setdefault((t, int(tri_pid[k])), k)
+    for (t, pid), k in sorted(pairs.items()):
+        v = tri_verts[k]
+        m = np.cross(v[1] - v[0], v[2] - v[0])
+        m = m / np.linalg.norm(m)
+        h = float(np.dot(center[t] - v[0], m))
+        rho2 = near_r2[t] - h * h
+        if not (rho2 > 0.0 and abs(h) < ZONE_HEIGHT * disc_radius[t]):
+            continue
+        foot = center[t] - h * m
+        lean = normal[t] - np.dot(normal[t], m) * m           # the disc's normal along the plane
+        if np.dot(foot - center[t], normal[t]) + math.sqrt(rho2) * np.linalg.norm(lean) <= 0.0:
+            continue                                           # the zone is all behind the disc
+        e1 = np.cross(m, [1.0, 0.0, 0.0] if abs(m[0]) < 0.9 else [0.0, 1.0, 0.0])
+        e1 /= np.linalg.norm(e1)
+        e2 = np.cross(m, e1)
+        hs2 = max(h * h, disc_radius[t] ** 2)
+        rows_f.append(np.concatenate([foot, m, e1, e2, [hs2, math.log1p(rho2 / hs2)]]))
+        rows_i.append([t, pid])
+    zone_f = np.ascontiguousarray(np.reshape(rows_f, (-1, 14)), dtype=np.float64)
+    zone_i = np.ascontiguousarray(np.reshape(rows_i, (-1, 2)), dtype=np.int64)
+    zone_start = np.zeros(n + 1, np.int64)
+    if len(zone_i):
+        np.cumsum(np.bincount(zone_i[:, 0], minlength=n), out=zone_start[1:])
+    return zone_f, zone_i, zone_start

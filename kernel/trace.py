@@ -403,6 +403,135 @@ def _image_event(vx, vy, vz, nx, ny, nz, mode, m, w, state, scene, intersect_fn,
     return n_out
 
 
+@njit(cache=True, _nrt=False)
+def _zone_event(vx, vy, vz, nx, ny, nz, mode, m, w, state, scene, intersect_fn, occluded_fn, scratch, offset_rel,
+                vscale, zone_f, zone_i, n_draw, zone_picks, tgt_row, tgt_ref, tgt_center, near_r2, sens_center,
+                sens_normal, sens_radius, geom_offset, tri_verts, tri_normal, tri_mat, tri_two_sided, tri_pid,
+                mat_prob, mat_nee, cop_start, cop_list, cop_box, cop_free, contrib, out_k, out_w, counters):
+    """Two-step next events: the light that the segment leaving v brings to a disc *through one diffuse
+    vertex y in the zone of surface beside the disc* (:func:`kernel.nee.near_zones`).
+
+    For ``n_draw`` draws (mean ``zone_picks``): a zone z (uniform over the Z zones) of disc target t on
+    plane P; a point y on P about the disc's foot c' at r with density p_A(y) = 1 / (π L (r² + h_s²)); the
+    ray v → y must first meet a triangle of P there (after the coplanar pick, as a photon would), inside
+    t's near sphere, whose side facing v is a material with next events; then from y a point x on the disc
+    by solid angle (:func:`kernel.nee.disc_point_by_solid_angle`, factor Ω̂) and a free leg y → x.  Deposit
+
+        w · f_v(ω_vy) · |cos θ_y| / |y − v|² / p_A(y) · P_ev,b(m_y) · |cos θ'_y| / π · Ω̂ · Z / zone_picks,
+
+    f_v as in :func:`kernel.nee.next_event`, ev the diffuse event of y's side towards x: the expected own
+    next event that a photon leaving v diffusely would make at y, which a photon that does land there
+    then skips.  Returns the number of deposits written to ``out_k``/``out_w``.
+    """
+    n_bands = w.shape[0]
+    n_zone = zone_i.shape[0]
+    if n_zone == 0 or n_draw <= 0 or not zone_picks > 0.0:
+        return 0
+    c0, c1 = view_factors(mode)
+    scale = n_zone / zone_picks
+    vmag = max(abs(vx), abs(vy), abs(vz), vscale)
+    rh = scratch + RAYHIT
+    args = scratch + ARGS
+    n_out = 0
+    for _ in range(n_draw):
+        z = min(int(uniform(state) * n_zone), n_zone - 1)
+        u1, u2, u3, u4 = uniform(state), uniform(state), uniform(state), uniform(state)
+        t, pid = zone_i[z, 0], zone_i[z, 1]
+        s = tgt_ref[t]
+        hs2, big_l = zone_f[z, 12], zone_f[z, 13]
+        r2 = hs2 * math.expm1(u1 * big_l)
+        r = math.sqrt(r2)
+        ca, sa = r * math.cos(2.0 * math.pi * u2), r * math.sin(2.0 * math.pi * u2)
+        yx = zone_f[z, 0] + ca * zone_f[z, 6] + sa * zone_f[z, 9]
+        yy = zone_f[z, 1] + ca * zone_f[z, 7] + sa * zone_f[z, 10]
+        yz = zone_f[z, 2] + ca * zone_f[z, 8] + sa * zone_f[z, 11]
+        inv_pa = math.pi * big_l * (r2 + hs2)
+        dx, dy, dz = yx - vx, yy - vy, yz - vz
+        dist = math.sqrt(dx * dx + dy * dy + dz * dz)
+        if not dist > 0.0:
+            continue
+        dx, dy, dz = dx / dist, dy / dist, dz / dist
+        cos_v = dx * nx + dy * ny + dz * nz
+        if mode == V_LAMBERT and cos_v <= 0.0:
+            continue
+        side = 0.0 if mode == V_ISOTROPIC else (1.0 if cos_v > 0.0 else -1.0)
+        eps = offset_rel * vmag
+        # the first leg: what a photon leaving v towards y meets first (past y by a little: Embree's float32)
+        set_ray(scratch, vx + side * eps * nx, vy + side * eps * ny, vz + side * eps * nz, dx, dy, dz,
+                dist * (1.0 + 2.0 ** -10) + 4.0 * eps)
+        call_ptr3(intersect_fn, scene, rh, args)
+        counters[4] += 1
+        gid = load_u32(rh + GEOM_ID)
+        if gid == INVALID_ID:
+            continue
+        tri = load_u32(rh + PRIM_ID) + geom_offset[gid]
+        if tri_pid[tri] != pid and cop_start[tri + 1] == cop_start[tri]:
+            continue
+        bu, bv = load_f32(rh + HIT_U), load_f32(rh + HIT_V)
+        b0 = 1.0 - bu - bv
+        hx = b0 * tri_verts[tri, 0, 0] + bu * tri_verts[tri, 1, 0] + bv * tri_verts[tri, 2, 0]
+        hy = b0 * tri_verts[tri, 0, 1] + bu * tri_verts[tri, 1, 1] + bv * tri_verts[tri, 2, 1]
+        hz = b0 * tri_verts[tri, 0, 2] + bu * tri_verts[tri, 1, 2] + bv * tri_verts[tri, 2, 2]
+        if cop_start[tri + 1] > cop_start[tri]:
+            tri = _pick_coplanar(tri, hx, hy, hz, dx, dy, dz, cop_start, cop_list, cop_box, cop_free,
+                                 tri_verts, tri_normal, tri_two_sided, state)
+        if tri_pid[tri] != pid:
+            continue                                   # something else first: no such vertex y
+        ex, ey, ez = hx - tgt_center[t, 0], hy - tgt_center[t, 1], hz - tgt_center[t, 2]
+        if not ex * ex + ey * ey + ez * ez < near_r2[t]:
+            continue                                   # outside the zone (a photon there makes a pick instead)
+        tnx, tny, tnz = tri_normal[tri, 0], tri_normal[tri, 1], tri_normal[tri, 2]
+        if dx * tnx + dy * tny + dz * tnz > 0.0:
+            my_ = tri_mat[tri, 1]
+            tnx, tny, tnz = -tnx, -tny, -tnz
+        else:
+            my_ = tri_mat[tri, 0]
+        if mat_nee[my_] == 0:
+            continue                                   # no next events from y's material: its crossings count
+        cos_in = -(dx * tnx + dy * tny + dz * tnz)
+        gx, gy, gz = hx - vx, hy - vy, hz - vz
+        arrive = cos_in / (gx * gx + gy * gy + gz * gz) * inv_pa * scale     # vertex density at y / p_A(y)
+        # the second leg: y's own next event towards disc t
+        px, py, pz, omega = disc_point_by_solid_angle(hx, hy, hz, s, u3, u4, sens_center, sens_normal,
+                                                      sens_radius)
+        if omega == 0.0:
+            continue
+        fx, fy, fz = px - hx, py - hy, pz - hz
+        d2 = math.sqrt(fx * fx + fy * fy + fz * fz)
+        if not d2 > 0.0:
+            continue
+        fx, fy, fz = fx / d2, fy / d2, fz / d2
+        if fx * sens_normal[s, 0] + fy * sens_normal[s, 1] + fz * sens_normal[s, 2] >= 0.0:
+            continue
+        cos_y = fx * tnx + fy * tny + fz * tnz
+        ev = 0 if cos_y > 0.0 else 2                   # DIFFUSE_R towards y's side of arrival, else DIFFUSE_T
+        any_light = False
+        for b in range(n_bands):
+            fv = c0 + c1 * abs(cos_v)
+            if mode == V_SURFACE:
+                fv *= mat_prob[m, 0 if cos_v > 0.0 else 2, b]
+            contrib[b] = w[b] * fv * arrive * mat_prob[my_, ev, b] * abs(cos_y) / math.pi * omega
+            any_light = any_light or contrib[b] > 0.0
+        if not any_light:
+            continue
+        hmag = max(_magnitude(tri_verts[tri]), abs(hx), abs(hy), abs(hz))
+        pmag = max(abs(px), abs(py), abs(pz))
+        sy = 1.0 if cos_y > 0.0 else -1.0
+        eps2 = offset_rel * (hmag + vmag)
+        tfar = d2 - offset_rel * (hmag + pmag) * 2.0
+        if tfar <= 0.0:
+            continue
+        counters[4] += 1
+        if not visible(occluded_fn, scene, scratch, hx + sy * eps2 * tnx, hy + sy * eps2 * tny,
+                       hz + sy * eps2 * tnz, fx, fy, fz, tfar):
+            continue
+        out_k[n_out] = tgt_row[t]
+        for b in range(n_bands):
+            out_w[n_out, b] = contrib[b]
+        n_out += 1
+    return n_out
+
+
 @njit(inline="always", cache=True)
 def _n_images(picks, state):
     """How many image events at a vertex: int(picks), plus one with probability frac(picks)."""
@@ -507,7 +636,8 @@ def trace_chunk(scene, intersect_fn, scratch, seed, first, count,
                 near_r2, sensor_target, receiver_target,
                 tri_verts, mat_nee, emit_nee, picks, cop_start, cop_list, cop_box, cop_free, tri_two_sided,
                 img_picks, tri_plane, mir_point, mir_normal, mir_list, mir_cdf, mir_inv_p, mir_on, mir_box,
-                mir_one_sided, control, tally, tally_sq, counters, nee_stats):
+                mir_one_sided, control, zone_picks, zone_f, zone_i, zone_start, tri_pid, tally, tally_sq, counters,
+                nee_stats):
     """Trace photons ``first .. first+count-1``; add what they do to the output arrays.
 
     Parameters (T triangles, M materials, B bands, S sensors, E emitter elements,
@@ -565,6 +695,9 @@ def trace_chunk(scene, intersect_fn, scratch, seed, first, count,
         mir_box (P, 2, 3) each plane's triangles' bounds (slightly widened); mir_one_sided (P,) uint8.
         A sensor crossing right after a perfect-mirror reflection on a plane in use, by a photon that
         came there from a next-event vertex, is then covered by the image events and not counted.
+    zone_picks : float, two-step next events through the zone beside a disc per next-event vertex, on
+        average (0: none; :func:`_zone_event`); zone_f (Z, 14), zone_i (Z, 2), zone_start (targets + 1,)
+        the zones (:func:`kernel.nee.near_zones`); tri_pid (T,) int32 each triangle's plane id.
     nee_stats : (M + E + P, 3) float64, shadow rays cast, unblocked, and the weight
         they deposit, per material, per emitter element, then per mirror plane (image events).
     tally (K + M + 4, B), tally_sq (K + M + 4, B, B) : float64, expected hits and
@@ -585,8 +718,9 @@ def trace_chunk(scene, intersect_fn, scratch, seed, first, count,
     dep = np.empty(n_bands)
     n_tgt = tgt_kind.shape[0]
     contrib = np.empty(n_bands)
-    out_k = np.empty(3 * (n_tgt + picks) + 1, dtype=np.int64)     # near discs + picks, 3 deposits each
-    out_w = np.empty((3 * (n_tgt + picks) + 1, n_bands))
+    n_slots = 3 * (n_tgt + picks) + 2 + int(max(img_picks, zone_picks))   # near discs + picks (3 deposits
+    out_k = np.empty(n_slots, dtype=np.int64)                             # each), or image / zone events
+    out_w = np.empty((n_slots, n_bands))
     control = control and nee_sensors and 0 < picks < n_tgt
     n_cv = 0            # sensor targets come first
     while control and n_cv < n_tgt and tgt_kind[n_cv] <= 1:
@@ -631,6 +765,7 @@ def trace_chunk(scene, intersect_fn, scratch, seed, first, count,
     args = scratch + ARGS
     cand_count = scratch + CAND_COUNT
     img_on = img_picks > 0.0 and nee_sensors and n_tgt > 0 and mir_list.shape[0] > 0
+    zone_on = zone_picks > 0.0 and nee_sensors and zone_i.shape[0] > 0 and 0 < picks < n_tgt
     stat_planes = n_mat + emit_nee.shape[0]
 
     for i in range(count):
@@ -654,7 +789,7 @@ def trace_chunk(scene, intersect_fn, scratch, seed, first, count,
                                offset_rel, tgt_kind, tgt_row, tgt_abs_row, tgt_ref, tgt_first, tgt_count, tgt_area,
                                tgt_center, tgt_near2, sens_center, sens_normal, sens_radius, sens_corners, nee_tri, nee_cdf, tri_verts,
                                tri_normal, tri_mat, mat_prob, contrib, out_k, out_w, counters, nee_stats,
-                               picks, oscale, -1, near_start, near_list, near_r2, control)
+                               picks, oscale, -1, near_start, near_list, near_r2, control, -1, zone_start, zone_i)
             for a in range(n_out):
                 nh = _record(out_k[a], out_w[a], acc, touched, rows, nh)
             n_img = _n_images(img_picks, state) if img_on and max_depth > 0 else 0
@@ -666,6 +801,15 @@ def trace_chunk(scene, intersect_fn, scratch, seed, first, count,
                                      cop_list, cop_box, cop_free, tri_plane, mir_point, mir_normal, mir_list,
                                      mir_cdf, mir_inv_p, mir_box, mir_one_sided, n_img, img_picks, contrib, out_k,
                                      out_w, counters, nee_stats, stat_planes)
+                for a in range(n_out):
+                    nh = _record(out_k[a], out_w[a], acc, touched, rows, nh)
+            n_zone = _n_images(zone_picks, state) if zone_on and max_depth > 0 else 0
+            if n_zone > 0:
+                n_out = _zone_event(ox, oy, oz, enx, eny, enz, emode, 0, w, state, scene, intersect_fn, occluded_fn,
+                                    scratch, offset_rel, oscale, zone_f, zone_i, n_zone, zone_picks, tgt_row, tgt_ref,
+                                    tgt_center, near_r2, sens_center, sens_normal, sens_radius, geom_offset,
+                                    tri_verts, tri_normal, tri_mat, tri_two_sided, tri_pid, mat_prob, mat_nee,
+                                    cop_start, cop_list, cop_box, cop_free, contrib, out_k, out_w, counters)
                 for a in range(n_out):
                     nh = _record(out_k[a], out_w[a], acc, touched, rows, nh)
             after_diffuse = True
@@ -759,6 +903,7 @@ def trace_chunk(scene, intersect_fn, scratch, seed, first, count,
                 if rec_analog:
                     nh = _record(absorbed0 + rec, dep, acc, touched, rows, nh)
             if n_tgt > 0 and mat_nee[m] != 0:   # expected light of the next segment if it leaves diffusely
+                cover = tri_pid[tri] if zone_on and after_diffuse else -1     # zone events served its near discs
                 if control:
                     _control_deposits(px, py, pz, nx, ny, nz, V_SURFACE, m, w,
                                       1 if near_start[tri + 1] > near_start[tri] else 0, cv_center, cv_normal,
@@ -768,7 +913,8 @@ def trace_chunk(scene, intersect_fn, scratch, seed, first, count,
                                    offset_rel, tgt_kind, tgt_row, tgt_abs_row, tgt_ref, tgt_first, tgt_count,
                                    tgt_area, tgt_center, tgt_near2, sens_center, sens_normal, sens_radius, sens_corners, nee_tri, nee_cdf,
                                    tri_verts, tri_normal, tri_mat, mat_prob, contrib, out_k, out_w, counters,
-                                   nee_stats, picks, pscale + oscale, tri, near_start, near_list, near_r2, control)
+                                   nee_stats, picks, pscale + oscale, tri, near_start, near_list, near_r2, control,
+                                   cover, zone_start, zone_i)
                 for a in range(n_out):
                     nh = _record(out_k[a], out_w[a], acc, touched, rows, nh)
                 # and through a mirror (if not cut at that mirror); the call itself is not free: only if drawn
@@ -782,6 +928,16 @@ def trace_chunk(scene, intersect_fn, scratch, seed, first, count,
                                          cop_free, tri_plane, mir_point, mir_normal, mir_list, mir_cdf,
                                          mir_inv_p, mir_box, mir_one_sided, n_img, img_picks, contrib, out_k,
                                          out_w, counters, nee_stats, stat_planes)
+                    for a in range(n_out):
+                        nh = _record(out_k[a], out_w[a], acc, touched, rows, nh)
+                n_zone = _n_images(zone_picks, state) if zone_on and depth + 1 < max_depth else 0
+                if n_zone > 0:     # and through one diffuse vertex beside a disc
+                    n_out = _zone_event(px, py, pz, nx, ny, nz, V_SURFACE, m, w, state, scene, intersect_fn,
+                                        occluded_fn, scratch, offset_rel, pscale + oscale, zone_f, zone_i, n_zone,
+                                        zone_picks, tgt_row, tgt_ref, tgt_center, near_r2, sens_center,
+                                        sens_normal, sens_radius, geom_offset, tri_verts, tri_normal, tri_mat,
+                                        tri_two_sided, tri_pid, mat_prob, mat_nee, cop_start, cop_list, cop_box,
+                                        cop_free, contrib, out_k, out_w, counters)
                     for a in range(n_out):
                         nh = _record(out_k[a], out_w[a], acc, touched, rows, nh)
 

@@ -158,6 +158,27 @@ def triangle_areas(tris: np.ndarray) -> np.ndarray:
     return 0.5 * np.linalg.norm(np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0]), axis=1)
 
 
+def plane_ids(tris: np.ndarray, rel_tol: float = 1e-9) -> np.ndarray:
+    """An id per triangle of (n, 3, 3) ``tris``, shared by triangles in one plane (either orientation), (n,) int32.
+
+    Planes are compared by their unit normal up to sign and their offset, rounded to ``rel_tol`` of the
+    scene's size; -1 for degenerate triangles.  Rounding may split one plane in two ids (never merges two
+    planes): callers use ids as "same plane" tests that need only be consistent, not complete."""
+    if len(tris) == 0:
+        return np.zeros(0, np.int32)
+    n = triangle_normals(tris)
+    first = np.argmax(np.abs(n) > 1e-12, axis=1)
+    sign = np.where(n[np.arange(len(n)), first] < 0, -1.0, 1.0)
+    n = n * sign[:, None]
+    d = np.einsum("ij,ij->i", n, tris[:, 0])
+    scale = max(float(np.abs(tris).max()), 1e-300)
+    key = np.column_stack([np.round(n / 1e-9), np.round(d / (rel_tol * scale))])
+    _, ids = np.unique(key, axis=0, return_inverse=True)
+    ids = ids.reshape(-1).astype(np.int32)
+    ids[~np.any(n != 0, axis=1)] = -1
+    return ids
+
+
 def coplanar_partners(tris: np.ndarray, source: np.ndarray, two_sided=None, rel_tol: float = 1e-9):
     """Triangles lying in the same plane as another surface's triangles, with overlapping bounds.
 

@@ -18,10 +18,10 @@ import numpy as np
 
 from .errors import InputError, ResourceError
 from .kernel import embree
-from .kernel.nee import build_targets
+from .kernel.nee import build_targets, near_zones
 from .kernel.trace import N_COUNTERS, trace_chunk
 from .materials import SPECULAR_R, sampling_tables
-from .geometry import coplanar_partners, mirror_planes, partner_free_boxes, triangle_normals
+from .geometry import coplanar_partners, mirror_planes, partner_free_boxes, plane_ids, triangle_normals
 
 CHUNK = 1 << 15
 ESTIMATORS = ("weighted", "analog", "nee")
@@ -212,6 +212,7 @@ class KernelScene:
         self.nee_control = True     # with picks: γ of every sensor at every vertex, picks carry the rest
         self.nee_receiver_mask = None   # (R,) bool: receivers that are next-event targets (None: all)
         self.nee_images = 0.5       # next events through a perfect mirror per vertex, on average (sensors; 0: none)
+        self.nee_zones = 0.5        # two-step next events through the surface beside a disc, per vertex (0: none)
         tris = chamber.triangles
         area = 0.5 * np.linalg.norm(np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0]), axis=1)
         keep = np.isfinite(tris).all(axis=(1, 2)) & (area > 0)
@@ -227,6 +228,7 @@ class KernelScene:
         self._chamber_two_sided = chamber.tri_two_sided[order]
         self._chamber_mat = chamber.tri_material[order].astype(np.int32)
         self._chamber_receiver = chamber.tri_receiver[order].astype(np.int32)
+        self._chamber_pid = plane_ids(tris[order])
         if getattr(chamber.physics, "coplanar", "random") == "random":
             self._chamber_cop = coplanar_partners(tris[order], np.asarray(chamber.tri_source)[order],
                                                   chamber.tri_two_sided[order])
@@ -273,6 +275,8 @@ class KernelScene:
         self.tri_mat = np.ascontiguousarray(np.concatenate([self._chamber_mat, mat]).astype(np.int32))
         self.tri_receiver = np.ascontiguousarray(np.concatenate([self._chamber_receiver, receiver]).astype(np.int32))
         self.tri_plane = np.ascontiguousarray(np.concatenate([self._chamber_plane, np.full(len(verts), -1, np.int32)]))
+        self.tri_pid = np.ascontiguousarray(np.concatenate([self._chamber_pid, np.full(len(verts), -1, np.int32)]),
+                                            dtype=np.int32)
         start, partners = self._chamber_cop
         self.cop_start = np.ascontiguousarray(np.concatenate([start, np.full(len(verts), start[-1], np.int64)]))
         self.cop_list = np.ascontiguousarray(partners if len(partners) else np.zeros(1, np.int32))
@@ -305,6 +309,18 @@ class KernelScene:
             sensors=self.nee_sensors, receivers=self.nee_receivers, receiver_mask=self.nee_receiver_mask)
         # kernel order: tgt_kind .. tgt_near2, nee_tri, nee_cdf, tgt_img_near2, near_*, sensor_target, receiver_target
         self.targets = tuple(targets) + (sensor_target, receiver_target)
+        # zones beside discs for two-step next events (only with random picks, where discs have own events)
+        n_tgt = len(targets[0])
+        disc_radius = np.zeros(n_tgt)
+        on = sensor_target >= 0
+        disc_radius[sensor_target[on]] = np.where(self.sens[0][on] == 0, self.sens[3][on], 0.0)
+        disc_normal = np.zeros((n_tgt, 3))
+        disc_normal[sensor_target[on]] = self.sens[2][on]
+        if self.nee_sensors and 0 < self.nee_picks < n_tgt:
+            self.zones = near_zones(self.tri_verts, self.tri_pid, self.n_chamber_triangles, *targets[12:15],
+                                    targets[7], disc_radius, disc_normal)
+        else:
+            self.zones = (np.zeros((0, 14)), np.zeros((0, 2), np.int64), np.zeros(n_tgt + 1, np.int64))
 
     def prune_next_events(self, photons: int = 8192, max_share: float = 1e-3, seed: int = 987654321,
                           threads=None, min_plane_share: float = 0.01) -> dict:
@@ -424,7 +440,7 @@ class KernelScene:
                     self.cop_free, self.tri_two_sided,
                     float(self.nee_images) if self.nee_sensors else 0.0, self.tri_plane, self.mir_point, self.mir_normal,
                     *self._mirror_draw(), self.mir_on, self.mir_box, self.mir_one_sided, bool(self.nee_control),
-                    *out)
+                    float(self.nee_zones) if self.nee_sensors else 0.0, *self.zones, self.tri_pid, *out)
         return out
 
 
