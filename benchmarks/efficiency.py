@@ -33,7 +33,7 @@ def rms_error(value, reference, reference_std):
     return float(np.sqrt(max(np.mean(rel ** 2 - noise), 0.0))), float(np.sqrt(np.mean(noise)))
 
 
-def angers_case(threads, quick):
+def angers_case(threads, quick, seed=7):
     chamber = load_scene(resolve_scene("angers"))
     scenes = {}
     for est in LADDER:
@@ -47,7 +47,7 @@ def angers_case(threads, quick):
     r, rs = r[:, 0] / ref.photons, rs[:, 0] / ref.photons
 
     def measure(est, n):
-        res = simulate.run(scenes[est], int(n), seed=7, threads=threads)
+        res = simulate.run(scenes[est], int(n), seed=seed, threads=threads)
         p, s = res.sensors()
         err, ref_noise = rms_error(p[:, 0] / res.photons, r, rs)
         sig = float(np.sqrt(np.mean((s[:, 0] / np.maximum(p[:, 0], 1e-300)) ** 2)))
@@ -56,7 +56,7 @@ def angers_case(threads, quick):
     return measure
 
 
-def rose_case(threads, quick):
+def rose_case(threads, quick, seed=7):
     from rose import LEAF_MATERIAL, rose
     from lpy_light.light import LightModel
 
@@ -94,12 +94,13 @@ def main():
     ap.add_argument("--out", default="runs/efficiency")
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--quick", action="store_true", help="short ladders and references (a smoke test)")
+    ap.add_argument("--seed", type=int, default=7, help="seed of the measured runs (the references keep theirs)")
     args = ap.parse_args()
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     rows = []
     for case, make in (("angers", angers_case), ("rose", rose_case)):
-        measure = make(args.threads, args.quick)
+        measure = make(args.threads, args.quick, args.seed)
         for est, ladder in LADDER.items():
             for n in (ladder[:2] if args.quick else ladder):
                 seconds, err, sig, rays, shadow, ref_noise = measure(est, n)

@@ -83,6 +83,10 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--nee-images", type=float, default=0.5, metavar="K",
                    help="with --estimator nee: next events through a perfect mirror per vertex, on average (default "
                         "0.5; 0 = none: light whose last bounce is specular is then counted)")
+    r.add_argument("--nee-zones", type=float, default=0.3, metavar="K",
+                   help="with --estimator nee: two-step next events per vertex through the surface right beside a "
+                        "disc sensor (within 4 radii of a wall or table), on average (default 0.3; 0 = none: that "
+                        "light then comes only from the photons that land there)")
     r.add_argument("--no-nee-control", action="store_true",
                    help="with --estimator nee: no control variate (each sensor's point-source value deposited at "
                         "every vertex, picks carrying only the difference); for comparisons")
@@ -127,6 +131,9 @@ def cmd_run(args) -> int:
     if not 0 <= args.nee_images <= 64:
         raise InputError("--nee-images must be in 0..64")
     kscene.nee_images = args.nee_images
+    if not 0 <= args.nee_zones <= 64:
+        raise InputError("--nee-zones must be in 0..64")
+    kscene.nee_zones = args.nee_zones
     kscene.nee_control = not args.no_nee_control
     if args.estimator == "nee":
         kscene.prune_next_events(threads=args.threads)
@@ -159,7 +166,8 @@ def cmd_run(args) -> int:
                                    chamber.spectrum, chamber.bands)
     extra, calibration, comparison = _after_run(args, chamber, result, norm, measured, ref, ref_band)
     if args.estimator == "nee":
-        extra["next_events"] = {"picks": kscene.nee_picks, "images": kscene.nee_images, "control": kscene.nee_control,
+        extra["next_events"] = {"picks": kscene.nee_picks, "images": kscene.nee_images, "zones": kscene.nee_zones,
+                                "zones_built": int(len(kscene.zones[1])), "control": kscene.nee_control,
                                 "mirror_planes": int(kscene.mir_on.sum()),
                                 "sources_off": [m.name for m, on in zip(kscene.materials, kscene.mat_nee) if not on]}
     if calibration is not None:

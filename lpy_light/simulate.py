@@ -212,7 +212,7 @@ class KernelScene:
         self.nee_control = True     # with picks: γ of every sensor at every vertex, picks carry the rest
         self.nee_receiver_mask = None   # (R,) bool: receivers that are next-event targets (None: all)
         self.nee_images = 0.5       # next events through a perfect mirror per vertex, on average (sensors; 0: none)
-        self.nee_zones = 0.5        # two-step next events through the surface beside a disc, per vertex (0: none)
+        self.nee_zones = 0.3        # two-step next events through the surface beside a disc, per vertex (0: none)
         tris = chamber.triangles
         area = 0.5 * np.linalg.norm(np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0]), axis=1)
         keep = np.isfinite(tris).all(axis=(1, 2)) & (area > 0)
