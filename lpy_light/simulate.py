@@ -332,10 +332,12 @@ class KernelScene:
         weight they carry stays below ``max_share`` of the total — e.g. lamps
         and mirrors inside a lamp box behind a diffuser, whose shadow rays are
         all blocked.  Either choice is unbiased; this only saves shadow rays.
-        Mirror planes are also switched off when they brought less than
-        ``min_plane_share`` of the light of all next events through mirrors: a
-        plane drawn rarely but able to light a sensor makes rare, very large
-        deposits (1 / its draw probability), worse than counting its light.
+        Mirror planes are switched off only when they brought less than
+        ``min_plane_share`` of the light of all next events through mirrors (not
+        by ``max_share``: a plane's light is then counted, rarely and at a high
+        price, while its events cost only when drawn): a plane drawn rarely but
+        able to light a sensor makes rare, very large deposits (1 / its draw
+        probability), worse than counting its light.
         Returns ``{name: (share of shadow rays, share of deposit)}`` of the pilot
         and the names switched off under ``"off"``.
         """
@@ -354,14 +356,15 @@ class KernelScene:
         total_w, total_c = max(weight.sum(), 1e-300), max(cast.sum(), 1.0)
         on = np.ones(len(stats), bool)
         lost = 0.0
+        E = len(self.emit_nee)
         for i in np.argsort(weight / np.maximum(cast, 1.0)):    # least weight per ray first
-            if cast[i] == 0:
-                continue
+            if cast[i] == 0 or i >= M + E:
+                continue          # (mirror planes: by their share below -- a plane's light lost is counted,
+                                  # rarely and at a high price, while its events cost only when drawn)
             if lost + weight[i] > max_share * total_w:
                 break
             on[i] = False
             lost += weight[i]
-        E = len(self.emit_nee)
         self.mat_nee = np.ascontiguousarray(on[:M], dtype=np.uint8)
         self.emit_nee = np.ascontiguousarray(on[M:M + E], dtype=np.uint8)
         w_planes = weight[M + E:]

@@ -15,6 +15,8 @@ N_SEC2 = 999_999_936
 
 
 SEC2_OFFSET = 0.005     # the 1e8 criterion's bound on |bias|: the full chamber sits -0.44 % ± 0.05 % from SEC2
+SEC2_SPREAD = 0.005     # rms per-sensor difference beyond both noises and the mean offset, at 1e8 photons:
+                        # √(1.03² − 0.80² − 0.44²) ≈ 0.48 % (docs/validation.md, full chamber)
 
 
 def _ok(c, min_within=0.97, max_bias_sigmas=4.0):
@@ -83,7 +85,9 @@ def test_full_chamber_1e6_agrees_with_sec2(full_1e6):
     c = full_1e6["sec2"]
     assert c.within_4sigma >= 0.97, c.line()
     assert abs(c.bias) < 4 * c.bias_std + SEC2_OFFSET, c.line()
-    assert c.rms < 1.2 * c.rms_noise, c.line()          # the spread is the noise
+    # the spread is the noise, the mean offset and the per-sensor spread measured at 1e8 (which 1e6 photons
+    # resolve since zone events: without them, a 1.2x noise bound alone)
+    assert c.rms ** 2 < (1.2 * c.rms_noise) ** 2 + c.bias ** 2 + SEC2_SPREAD ** 2, c.line()
     assert full_1e6["photon_mapping"] is not None
 
 
