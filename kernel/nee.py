@@ -30,6 +30,11 @@ bounded however near v is.  For quads and meshes, a vertex closer to a target
 than :data:`NEAR` times the target's bounding radius makes no next event for
 it, and the segment's real crossing of that target is counted instead — a fixed
 split of the path space, so still unbiased.
+
+A disc right beside a wall gets much of its light through the few photons
+that land on the wall next to it; :func:`near_zones` marks those patches, and
+:func:`kernel.trace._zone_event` reaches them from every vertex instead (a
+two-step next event), the photons that do land there skipping what it covered.
 """
 import math
 

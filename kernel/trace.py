@@ -482,11 +482,11 @@ def _zone_event(vx, vy, vz, nx, ny, nz, mode, m, w, state, scene, intersect_fn, 
             continue                                   # outside the zone (a photon there makes a pick instead)
         tnx, tny, tnz = tri_normal[tri, 0], tri_normal[tri, 1], tri_normal[tri, 2]
         if dx * tnx + dy * tny + dz * tnz > 0.0:
-            my_ = tri_mat[tri, 1]
+            m_y = tri_mat[tri, 1]
             tnx, tny, tnz = -tnx, -tny, -tnz
         else:
-            my_ = tri_mat[tri, 0]
-        if mat_nee[my_] == 0:
+            m_y = tri_mat[tri, 0]
+        if mat_nee[m_y] == 0:
             continue                                   # no next events from y's material: its crossings count
         cos_in = -(dx * tnx + dy * tny + dz * tnz)
         gx, gy, gz = hx - vx, hy - vy, hz - vz
@@ -510,7 +510,7 @@ def _zone_event(vx, vy, vz, nx, ny, nz, mode, m, w, state, scene, intersect_fn, 
             fv = c0 + c1 * abs(cos_v)
             if mode == V_SURFACE:
                 fv *= mat_prob[m, 0 if cos_v > 0.0 else 2, b]
-            contrib[b] = w[b] * fv * arrive * mat_prob[my_, ev, b] * abs(cos_y) / math.pi * omega
+            contrib[b] = w[b] * fv * arrive * mat_prob[m_y, ev, b] * abs(cos_y) / math.pi * omega
             any_light = any_light or contrib[b] > 0.0
         if not any_light:
             continue
