@@ -13,7 +13,9 @@ the 240 sensors) of the 12-band run against the 1-band run.
 One thread and process CPU time by default: the ratio is what matters, and CPU
 time is steadier than wall time on a shared machine (``--clock wall`` for wall time).
 
-Measured (2-core shared VM, 1e6 photons, 5 repeats, CPU time): weighted 1.25x, nee 1.21-1.22x;
+Measured (2-core shared VM, 1e6 photons, 5 repeats, CPU time): weighted 1.25x, nee 1.21-1.22x
+before the control variate; on 2026-11-23 weighted 1.15-1.32x, nee 2.0-2.1x (the control variate's γ
+deposits and band products on all 240 sensors at every vertex; 1.19x without it, at 8x its σ²·t);
 rays per photon rise 3.5% (q = max over bands of the scattering probability keeps a photon alive
 while its brightest band would scatter), the rest is the per-event band work (B weights copied, B²
 products per tally event for the covariances).  Computing only the upper triangle of the B²

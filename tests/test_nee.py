@@ -282,6 +282,30 @@ def test_control_variate_is_unbiased_and_lowers_the_variance(tmp_path):
     assert ratio < 0.6, ratio
 
 
+def test_control_variate_keeps_the_covariances_between_bands(tmp_path):
+    """The control deposits' products between bands are per photon (batched over photons for speed):
+    in a grey room the three bands are one and the same, so every sensor's 3 x 3 covariance is one number
+    (an unmirrored triangle breaks that: checked), and across seeds the spread of the band sum matches its
+    reported σ (a slot not advanced, so that photons' deposits pile up before their products are taken,
+    breaks that: checked; a σ summed as if the bands were independent would be √3 too small)."""
+    scene = write_scene(tmp_path, GRID_ROOM, GRID, toml_extra="bands = [[400, 500], [500, 600], [600, 700]]\n")
+    chamber = load_scene(scene)
+    rows = np.arange(len(GRID))
+    values, sigmas = [], []
+    for seed in range(12):
+        ks = simulate.KernelScene(chamber, "nee")
+        assert ks.nee_control and 0 < ks.nee_picks < len(GRID)
+        r = simulate.run(ks, 20_001, seed=100 + seed, threads=2)     # odd: the last batch is part-filled
+        cov = r.covariance(rows)
+        np.testing.assert_allclose(cov, np.broadcast_to(cov[:, :1, :1], cov.shape), rtol=1e-9)
+        v, s = r.combination(rows, [1.0, 1.0, 1.0])
+        values.append(v)
+        sigmas.append(s)
+    values, sigmas = np.array(values), np.array(sigmas)
+    ratio = np.mean(values.var(axis=0, ddof=1)) / np.mean(sigmas ** 2)     # pooled over 49 sensors
+    assert 0.7 < ratio < 1.4, ratio
+
+
 def test_pruning_drops_mirror_planes_that_bring_little(room):
     """Planes that brought < 1 % of the light through mirrors in the pilot are switched off (their light is
     counted); those kept brought ≥ 1 % each, and the silver mirror, which lights sensors, is kept."""
