@@ -268,6 +268,36 @@ def _pick_coplanar(tri, px, py, pz, dx, dy, dz, cop_start, cop_list, cop_box, co
     return chosen
 
 
+@njit(inline="always", cache=True)
+def _hit_on_plane(scene, intersect_fn, rh, args, plane_of, plane, dx, dy, dz, geom_offset, tri_verts, tri_normal,
+                  tri_mat, tri_two_sided, cop_start, cop_list, cop_box, cop_free, state):
+    """Trace the ray already set in ``rh`` (direction d); if what a photon would meet first (a coplanar tie
+    picked at random, as at a photon's hit) lies on plane ``plane`` of ``plane_of`` (T,), return
+    (triangle, hit point, its normal turned towards the ray's origin, the material of that side);
+    triangle -1 otherwise."""
+    call_ptr3(intersect_fn, scene, rh, args)
+    gid = load_u32(rh + GEOM_ID)
+    if gid == INVALID_ID:
+        return -1, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0
+    tri = load_u32(rh + PRIM_ID) + geom_offset[gid]
+    if plane_of[tri] != plane and cop_start[tri + 1] == cop_start[tri]:
+        return -1, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0
+    bu, bv = load_f32(rh + HIT_U), load_f32(rh + HIT_V)
+    b0 = 1.0 - bu - bv
+    hx = b0 * tri_verts[tri, 0, 0] + bu * tri_verts[tri, 1, 0] + bv * tri_verts[tri, 2, 0]
+    hy = b0 * tri_verts[tri, 0, 1] + bu * tri_verts[tri, 1, 1] + bv * tri_verts[tri, 2, 1]
+    hz = b0 * tri_verts[tri, 0, 2] + bu * tri_verts[tri, 1, 2] + bv * tri_verts[tri, 2, 2]
+    if cop_start[tri + 1] > cop_start[tri]:
+        tri = _pick_coplanar(tri, hx, hy, hz, dx, dy, dz, cop_start, cop_list, cop_box, cop_free,
+                             tri_verts, tri_normal, tri_two_sided, state)
+    if plane_of[tri] != plane:
+        return -1, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0    # something else first
+    tnx, tny, tnz = tri_normal[tri, 0], tri_normal[tri, 1], tri_normal[tri, 2]
+    if dx * tnx + dy * tny + dz * tnz > 0.0:
+        return tri, hx, hy, hz, -tnx, -tny, -tnz, tri_mat[tri, 1]
+    return tri, hx, hy, hz, tnx, tny, tnz, tri_mat[tri, 0]
+
+
 @njit(cache=True, _nrt=False)
 def _image_event(vx, vy, vz, nx, ny, nz, mode, m, w, state, scene, intersect_fn, occluded_fn, scratch, offset_rel,
                  vscale, tgt_kind, tgt_row, tgt_ref, tgt_area, tgt_center, tgt_near2, sens_center, sens_normal,
@@ -351,31 +381,13 @@ def _image_event(vx, vy, vz, nx, ny, nz, mode, m, w, state, scene, intersect_fn,
         side = 0.0 if mode == 0 else (1.0 if cos_v > 0.0 else -1.0)
         eps = offset_rel * vmag
         set_ray(scratch, vx + side * eps * nx, vy + side * eps * ny, vz + side * eps * nz, dx, dy, dz, L)
-        call_ptr3(intersect_fn, scene, rh, args)
         counters[4] += 1
         nee_stats[stat0 + pl, 0] += 1
-        gid = load_u32(rh + GEOM_ID)
-        if gid == INVALID_ID:
-            continue
-        tri = load_u32(rh + PRIM_ID) + geom_offset[gid]
-        if tri_plane[tri] != pl and cop_start[tri + 1] == cop_start[tri]:
-            continue
-        bu, bv = load_f32(rh + HIT_U), load_f32(rh + HIT_V)
-        b0 = 1.0 - bu - bv
-        hx = b0 * tri_verts[tri, 0, 0] + bu * tri_verts[tri, 1, 0] + bv * tri_verts[tri, 2, 0]
-        hy = b0 * tri_verts[tri, 0, 1] + bu * tri_verts[tri, 1, 1] + bv * tri_verts[tri, 2, 1]
-        hz = b0 * tri_verts[tri, 0, 2] + bu * tri_verts[tri, 1, 2] + bv * tri_verts[tri, 2, 2]
-        if cop_start[tri + 1] > cop_start[tri]:
-            tri = _pick_coplanar(tri, hx, hy, hz, dx, dy, dz, cop_start, cop_list, cop_box, cop_free,
-                                 tri_verts, tri_normal, tri_two_sided, state)
-        if tri_plane[tri] != pl:
+        tri, hx, hy, hz, tnx, tny, tnz, mm = _hit_on_plane(scene, intersect_fn, rh, args, tri_plane, pl, dx, dy, dz,
+                                                           geom_offset, tri_verts, tri_normal, tri_mat, tri_two_sided,
+                                                           cop_start, cop_list, cop_box, cop_free, state)
+        if tri < 0:
             continue                                   # something else first: no path through P here
-        tnx, tny, tnz = tri_normal[tri, 0], tri_normal[tri, 1], tri_normal[tri, 2]
-        if dx * tnx + dy * tny + dz * tnz > 0.0:
-            mm = tri_mat[tri, 1]
-            tnx, tny, tnz = -tnx, -tny, -tnz
-        else:
-            mm = tri_mat[tri, 0]
         if not math.isinf(mat_phong[mm]):
             continue                                   # only perfect mirrors (the planes are built so)
         # second leg: from the mirror point to x, which must be crossed from the sensor's front
@@ -475,33 +487,15 @@ def _zone_event(vx, vy, vz, nx, ny, nz, mode, m, w, state, scene, intersect_fn, 
         # the first leg: what a photon leaving v towards y meets first (past y by a little: Embree's float32)
         set_ray(scratch, vx + side * eps * nx, vy + side * eps * ny, vz + side * eps * nz, dx, dy, dz,
                 dist * (1.0 + 2.0 ** -10) + 4.0 * eps)
-        call_ptr3(intersect_fn, scene, rh, args)
         counters[4] += 1
-        gid = load_u32(rh + GEOM_ID)
-        if gid == INVALID_ID:
-            continue
-        tri = load_u32(rh + PRIM_ID) + geom_offset[gid]
-        if tri_pid[tri] != pid and cop_start[tri + 1] == cop_start[tri]:
-            continue
-        bu, bv = load_f32(rh + HIT_U), load_f32(rh + HIT_V)
-        b0 = 1.0 - bu - bv
-        hx = b0 * tri_verts[tri, 0, 0] + bu * tri_verts[tri, 1, 0] + bv * tri_verts[tri, 2, 0]
-        hy = b0 * tri_verts[tri, 0, 1] + bu * tri_verts[tri, 1, 1] + bv * tri_verts[tri, 2, 1]
-        hz = b0 * tri_verts[tri, 0, 2] + bu * tri_verts[tri, 1, 2] + bv * tri_verts[tri, 2, 2]
-        if cop_start[tri + 1] > cop_start[tri]:
-            tri = _pick_coplanar(tri, hx, hy, hz, dx, dy, dz, cop_start, cop_list, cop_box, cop_free,
-                                 tri_verts, tri_normal, tri_two_sided, state)
-        if tri_pid[tri] != pid:
+        tri, hx, hy, hz, tnx, tny, tnz, m_y = _hit_on_plane(scene, intersect_fn, rh, args, tri_pid, pid, dx, dy, dz,
+                                                            geom_offset, tri_verts, tri_normal, tri_mat, tri_two_sided,
+                                                            cop_start, cop_list, cop_box, cop_free, state)
+        if tri < 0:
             continue                                   # something else first: no such vertex y
         ex, ey, ez = hx - tgt_center[t, 0], hy - tgt_center[t, 1], hz - tgt_center[t, 2]
         if not ex * ex + ey * ey + ez * ez < near_r2[t]:
             continue                                   # outside the zone (a photon there makes a pick instead)
-        tnx, tny, tnz = tri_normal[tri, 0], tri_normal[tri, 1], tri_normal[tri, 2]
-        if dx * tnx + dy * tny + dz * tnz > 0.0:
-            m_y = tri_mat[tri, 1]
-            tnx, tny, tnz = -tnx, -tny, -tnz
-        else:
-            m_y = tri_mat[tri, 0]
         if mat_nee[m_y] == 0:
             continue                                   # no next events from y's material: its crossings count
         cos_in = -(dx * tnx + dy * tny + dz * tnz)
