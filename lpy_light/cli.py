@@ -180,6 +180,15 @@ def cmd_run(args) -> int:
         print("lpy-light: %s vs %s (band %s): %s" % (path.name, ref.source, ref_band, comparison.line()))
     if args.plot:
         _plots(args, chamber, result, norm, comparison, ref, ref_band)
+    if not args.quiet and "relative_sigma" in summary:
+        sig = summary["relative_sigma"]
+        at = sig["max_at"]
+        print("lpy-light: relative σ per sensor and band: median %.3g %%, largest %.3g %% (sensor %d at %s %s, "
+              "band %s)%s" % (100 * sig["median"], 100 * sig["max"], at["sensor"],
+                              ", ".join("%g" % x for x in at["position"]), chamber.unit, at["band"],
+                              "" if args.precision is None else "; --precision %g %s" % (
+                                  args.precision, "reached" if summary.get("precision_reached") else "NOT reached")),
+              file=sys.stderr)
     if not args.quiet:
         print("lpy-light: %d photons in %.2f s (%.3g photons/s)%s; results in %s"
               % (result.photons, result.seconds, summary["photons_per_second"] or 0,

@@ -107,6 +107,23 @@ def derived_table(chamber, result, norm) -> list:
     return rows
 
 
+def sigma_summary(chamber, result) -> dict | None:
+    """Relative σ of every sensor and band (σ / value, where the value is > 0): its median and where it is
+    largest -- the tally that a ``--precision`` run waits for.  None without sensors or without light."""
+    if not len(chamber.sensors):
+        return None
+    value, std = result.sensors()                      # (S, B) each
+    lit = value > 0
+    if not lit.any():
+        return None
+    rel = np.where(lit, std / np.where(lit, value, 1.0), -1.0)
+    s, b = np.unravel_index(int(np.argmax(rel)), rel.shape)
+    return {"median": float(np.median(rel[lit])), "max": float(rel[s, b]),
+            "max_at": {"sensor": int(s), "band": chamber.band_labels[b],
+                       "position": [float(x) for x in chamber.sensors.center[s]]},
+            "unlit": int((~lit).sum())}
+
+
 def receiver_table(chamber, result) -> list:
     inc, inc_std = result.receivers_incident()
     ab, ab_std = result.receivers_absorbed()
@@ -145,6 +162,9 @@ def write_run(out_dir, chamber, result, norm=None, extra=None) -> dict:
         "counters": {"candidate_overflows": int(result.counters[1]), "scratch_flushes": int(result.counters[2]),
                      "lost": int(result.counters[3])},
     }
+    sigma = sigma_summary(chamber, result)
+    if sigma is not None:
+        summary["relative_sigma"] = sigma
     if norm is not None:
         summary["normalisation"] = {"how": norm.how, "assumption": getattr(norm, "assumption", None),
                                     "scale": norm.scale.tolist(), "scale_std": norm.scale_std.tolist()}

@@ -42,6 +42,33 @@ def test_run_writes_sensors_and_summary(tmp_path):
     assert closure["residual"] == pytest.approx(0, abs=1e-6) and closure["residual_std"] < 1e-3
 
 
+def test_precision_stops_when_every_sensor_is_there(tmp_path):
+    """``--precision REL``: the run stops once every sensor's relative σ is ≤ REL, well before the cap,
+    with the same files as a plain run of the photons it traced; the summary and the last line say which
+    sensor was the slowest.  Too small a cap: the cap's photons, and "NOT reached"."""
+    scene = write_scene(tmp_path / "s", RAD, SENSORS)
+    out = tmp_path / "p"
+    p = _run("run", scene, "--precision", "0.02", "--photons", "1e8", "--seed", 5, "--out", out)
+    assert p.returncode == 0, p.stderr
+    summary = json.load(open(out / "summary.json"))
+    rows = list(csv.DictReader(open(out / "sensors.csv")))
+    rel = [float(r["photons_std"]) / float(r["photons"]) for r in rows]
+    assert summary["precision_reached"] and 0 < summary["photons"] < 1e7
+    assert max(rel) <= 0.02 and max(rel) > 0.015          # stopped at the first check past the goal
+    assert summary["relative_sigma"]["max"] == pytest.approx(max(rel))
+    assert summary["relative_sigma"]["max_at"]["sensor"] == rel.index(max(rel))
+    assert "--precision 0.02 reached" in p.stderr
+    plain = tmp_path / "plain"
+    p2 = _run("run", scene, "--photons", summary["photons"], "--seed", 5, "--out", plain, "--quiet")
+    assert p2.returncode == 0, p2.stderr
+    assert (plain / "sensors.csv").read_text() == (out / "sensors.csv").read_text()
+    p3 = _run("run", scene, "--precision", "1e-4", "--photons", "5e4", "--out", tmp_path / "cap")
+    assert p3.returncode == 0, p3.stderr
+    capped = json.load(open(tmp_path / "cap" / "summary.json"))
+    assert capped["photons"] == 50000 and not capped["precision_reached"]
+    assert "NOT reached" in p3.stderr
+
+
 @pytest.mark.parametrize("mutate, where", [
     (lambda d: (d / "scene.rad").write_text(RAD.replace("5 0.5 0.5 0.5 0 0", "5 0.5 0.5 oops 0 0")), "scene.rad:4"),
     (lambda d: (d / "sensors.csv").write_text("X,Y,Z,rayon_capteur,Xnorm,Ynorm,Znorm\n1,2,3,4,0,0\n"), "sensors.csv:2"),
