@@ -96,8 +96,9 @@ def main():
                        targets=None if args.targets == ["all"] else args.targets,
                        organs={"Leaf": LEAF_MATERIAL, "Internode": LEAF_MATERIAL[0], "Bud": LEAF_MATERIAL[0]})
     print("chamber + normalisation: %.2f s (once)" % (time.perf_counter() - t0))
-    print("%4s %7s %9s %8s %9s %9s %10s %10s %10s" % ("step", "organs", "triangles", "step s", "convert s",
-                                                       "trace s", "leaf σ med", "leaf σ p90", "bud σ med"))
+    print("%4s %7s %9s %8s %9s %9s %10s %10s %10s %10s" % ("step", "organs", "triangles", "step s", "convert s",
+                                                            "trace s", "leaf σ med", "leaf σ p90", "leaf σ rms",
+                                                            "bud σ med"))
     for stage in range(args.steps):
         plant = rose(stage, args.steps - 1)
         t = time.perf_counter()
@@ -107,9 +108,10 @@ def main():
         total = time.perf_counter() - t
         rel = np.array([l.par_std / l.par for l in step.organs.values() if l.module == "Leaf" and l.par > 0])
         bud = np.array([l.par_std / l.par for l in step.organs.values() if l.module == "Bud" and l.par > 0])
-        print("%4d %7d %9d %8.2f %9.3f %9.2f %9.1f%% %9.1f%% %9.1f%%" % (
+        print("%4d %7d %9d %8.2f %9.3f %9.2f %9.1f%% %9.1f%% %9.1f%% %9.1f%%" % (
             stage, len(organs), step.triangles, total, t_convert, step.seconds, 100 * np.median(rel),
-            100 * np.percentile(rel, 90), 100 * np.median(bud) if len(bud) else float("nan")))
+            100 * np.percentile(rel, 90), 100 * np.sqrt(np.mean(rel ** 2)),
+            100 * np.median(bud) if len(bud) else float("nan")))
     # what building once and caching save
     t = time.perf_counter()
     model.cache = type(model.cache)()
