@@ -634,145 +634,35 @@ def _emit(e, kind, data, state, offset_rel):
     return ox + eps * nx, oy + eps * ny, oz + eps * nz, dx, dy, dz, nx, ny, nz, V_LAMBERT, scale
 
 
-@njit(nogil=True, cache=True)
-def trace_chunk(scene, intersect_fn, scratch, seed, first, count,
-                geom_offset, tri_normal, tri_mat, tri_receiver,
-                mat_prob, mat_cum, mat_phong,
-                sens_kind, sens_center, sens_normal, sens_radius, sens_corners,
-                emit_kind, emit_data, emit_cdf,
-                max_depth, offset_rel, n_receivers, expected_absorption,
-                occluded_fn, nee_sensors, nee_receivers, tgt_kind, tgt_row, tgt_abs_row, tgt_ref, tgt_first,
-                tgt_count, tgt_area, tgt_center, tgt_near2, nee_tri, nee_cdf, tgt_img_near2, near_start, near_list,
-                near_r2, sensor_target, receiver_target,
-                tri_verts, mat_nee, emit_nee, picks, cop_start, cop_list, cop_box, cop_free, tri_two_sided,
-                img_picks, tri_plane, mir_point, mir_normal, mir_list, mir_cdf, mir_inv_p, mir_on, mir_box,
-                mir_one_sided, control, zone_picks, zone_f, zone_i, zone_start, tri_pid, tally, tally_sq, counters,
-                nee_stats):
-    """Trace photons ``first .. first+count-1``; add what they do to the output arrays.
-
-    Parameters (T triangles, M materials, B bands, S sensors, E emitter elements,
-    R receivers, K = S + 2R tallies):
-
-    scene, intersect_fn, scratch : int
-        Embree scene handle, address of ``rtcIntersect1``, base of this thread's
-        scratch block (:func:`kernel.embree.new_scratch`).
-    seed, first, count : int
-        Run seed and photon index range; photon i's random stream is a function
-        of ``(seed, i)`` only.
-    geom_offset : (3,) int64
-        Global triangle index = Embree ``primID + geom_offset[geomID]``.
-    tri_normal : (T, 3) float64, unit right-hand-rule normals.
-    tri_mat : (T, 2) int32, material seen from the front / back side.
-    tri_receiver : (T,) int32, receiver index or -1.
-    mat_prob : (M, 5, B) float64, probability of each event per band.
-    mat_cum : (M, 5) float64, cumulative event probabilities q shared by the bands.
-    mat_phong : (M,) float64, Phong exponent of the specular lobe (inf = mirror).
-    sens_* : transparent sensors: kind, centre (S, 3), unit normal (S, 3),
-        radius (S,), quad corners (S, 4, 3).
-    emit_kind (E,), emit_data (E, 3, 3), emit_cdf (E,) : emitter elements and the
-        cumulative distribution of their power.
-    max_depth : int, scattering events allowed before a photon is cut.
-    offset_rel : float, ray offset relative to the round-off scale of a hit: a new ray starts
-        ``offset_rel · (max(|v_i|, |p|) + |o|)`` off the surface along its normal (v_i the hit
-        triangle's vertices, p the hit, o the ray's origin; ∞-norms), which bounds Embree's float32
-        error a few ulps deep (``docs/stability.md``).
-    expected_absorption : bool, the ``weighted`` estimator (True) or ``analog``.
-    occluded_fn : int, address of ``rtcOccluded1`` (next-event shadow rays).
-    nee_sensors, nee_receivers : bool, whether sensors / receivers are
-        next-event targets (:mod:`kernel.nee`); their crossings and hits after
-        diffuse vertices are then not counted, the targets' expected values are.
-    tgt_*, nee_tri, nee_cdf, near_*, sensor_target, receiver_target : next-event
-        targets (:func:`kernel.nee.build_targets`); empty arrays for none.  ``tgt_near2`` are the
-        exclusion radii² of next events (0 for discs), ``tgt_img_near2`` those of next events through
-        mirrors.
-    tri_verts : (T, 3, 3) float64, triangle vertices (to sample points on receivers).
-    mat_nee (M,), emit_nee (E,) : uint8, next events from this material's
-        surfaces / this emitter element (0: its segments are counted instead).
-    picks : int, targets per next event (0: all; see :func:`kernel.nee.next_event`).
-    cop_start (T+1,) int64, cop_list (K,) int32 : coplanar candidates of each triangle
-        (:func:`lpy_light.geometry.coplanar_partners`); a hit on a triangle with candidates
-        picks, uniformly at random, one of it and the candidates that contain the hit point
-        and face the ray (or are two-sided).  All-zero ``cop_start``: no such choice.
-    cop_box : (T, 2, 3) float64, each triangle's bounding box, slightly widened (quick reject).
-    cop_free : (T, 2, 3) float64, a box where none of the triangle's candidates reaches
-        (:func:`lpy_light.geometry.partner_free_boxes`): hits inside it skip the tests.
-    tri_two_sided : (T,) uint8, whether each triangle is seen from both sides.
-    img_picks : float, next events through a mirror per next-event vertex, on average (0: none; fractional:
-        a random whole number with that mean; :func:`_image_event`).
-    tri_plane (T,) int32 : each triangle's mirror plane or -1; mir_point, mir_normal (P, 3) : a point and
-        the unit normal of each plane; mir_list : int32, the planes in use, drawn by the cumulative
-        probabilities mir_cdf with weights 1 / p = mir_inv_p; mir_on (P,) uint8, the planes in use as flags;
-        mir_box (P, 2, 3) each plane's triangles' bounds (slightly widened); mir_one_sided (P,) uint8.
-        A sensor crossing right after a perfect-mirror reflection on a plane in use, by a photon that
-        came there from a next-event vertex, is then covered by the image events and not counted.
-    zone_picks : float, two-step next events through the zone beside a disc per next-event vertex, on
-        average (0: none; :func:`_zone_event`); zone_f (Z, 14), zone_i (Z, 2), zone_start (targets + 1,)
-        the zones (:func:`kernel.nee.near_zones`); tri_pid (T,) int32 each triangle's plane id.
-    nee_stats : (M + E + P, 3) float64, shadow rays cast, unblocked, and the weight
-        they deposit, per material, per emitter element, then per mirror plane (image events).
-    tally (K + M + 4, B), tally_sq (K + M + 4, B, B) : float64, expected hits and
-        sums of products (band by band) of per-photon contributions: rows [0, S) sensor crossings, [S, S+R)
-        receiver incident, [S+R, K) receiver absorbed, then fates from row K:
-        weight absorbed per material (M rows), escaped, cut at max_depth, lost
-        to numerical failure, and the photon's total deposit.
-    counters : (4,) int64: rays traced, candidate overflows, scratch flushes, lost.
-    """
+@njit(nogil=True, cache=True, _nrt=False)
+def _trace_photons(scene, intersect_fn, scratch, seed, first, count,
+                   geom_offset, tri_normal, tri_mat, tri_receiver,
+                   mat_prob, mat_cum, mat_phong,
+                   sens_kind, sens_center, sens_normal, sens_radius, sens_corners,
+                   emit_kind, emit_data, emit_cdf,
+                   max_depth, offset_rel, n_receivers, expected_absorption,
+                   occluded_fn, nee_sensors, nee_receivers, tgt_kind, tgt_row, tgt_abs_row, tgt_ref, tgt_first,
+                   tgt_count, tgt_area, tgt_center, tgt_near2, nee_tri, nee_cdf, tgt_img_near2, near_start, near_list,
+                   near_r2, sensor_target, receiver_target,
+                   tri_verts, mat_nee, emit_nee, picks, cop_start, cop_list, cop_box, cop_free, tri_two_sided,
+                   img_picks, tri_plane, mir_point, mir_normal, mir_list, mir_cdf, mir_inv_p, mir_on, mir_box,
+                   mir_one_sided, control, zone_picks, zone_f, zone_i, zone_start, tri_pid, tally, tally_sq, counters,
+                   nee_stats,
+                   state, w, dep, contrib, out_k, out_w, cv_row, cv_center, cv_normal, cv_area, cv_thr, cv_runs,
+                   cv_plane, cv_batch, cv_tally, cv_sq, g_r, g_t, acc, touched, rows, tot, seen):
+    """The photon loop of :func:`trace_chunk` (its arguments, then its work arrays), compiled without
+    reference counting: array views and inlined helpers here would otherwise cost an atomic
+    increment and decrement each (~20 % of a rose step's CPU time, more with two threads)."""
     n_bands = mat_prob.shape[2]
     n_mat = mat_prob.shape[0]
     n_sens = sens_center.shape[0]
     fate0 = tally.shape[0] - n_mat - 4
     f_escaped, f_cut, f_lost = fate0 + n_mat, fate0 + n_mat + 1, fate0 + n_mat + 2
     absorbed0 = n_sens + n_receivers
-    state = np.zeros(1, dtype=np.uint64)
-    w = np.empty(n_bands)
-    dep = np.empty(n_bands)
     n_tgt = tgt_kind.shape[0]
-    contrib = np.empty(n_bands)
-    n_slots = 3 * (n_tgt + picks) + 2 + int(max(img_picks, zone_picks))   # near discs + picks (3 deposits
-    out_k = np.empty(n_slots, dtype=np.int64)                             # each), or image / zone events
-    out_w = np.empty((n_slots, n_bands))
-    control = control and nee_sensors and 0 < picks < n_tgt
-    n_cv = 0            # sensor targets come first
-    while control and n_cv < n_tgt and tgt_kind[n_cv] <= 1:
-        n_cv += 1
-    cv_center = np.empty((3, n_cv), dtype=np.float32)      # float32: γ's loop runs 16 wide
-    cv_normal = np.empty((3, n_cv), dtype=np.float32)
-    cv_area = np.empty(n_cv, dtype=np.float32)
-    cv_thr = np.empty((2, n_cv), dtype=np.float32)
-    cv_row = np.empty(n_cv, dtype=np.int64)
-    for t in range(n_cv):
-        for c in range(3):
-            cv_center[c, t] = tgt_center[t, c]
-            cv_normal[c, t] = sens_normal[tgt_ref[t], c]
-        cv_area[t] = tgt_area[t]
-        cv_thr[0, t] = tgt_near2[t]
-        cv_thr[1, t] = max(tgt_near2[t], near_r2[t])
-        cv_row[t] = tgt_row[t]
-    cv_runs = np.empty((n_cv, 2), dtype=np.int64)     # runs of targets on one plane with one normal:
-    cv_plane = np.empty(n_cv, dtype=np.float32)       # first, end; the plane's offset n·c
-    n_runs = 0
-    for t in range(n_cv):
-        off = cv_normal[0, t] * cv_center[0, t] + cv_normal[1, t] * cv_center[1, t] + cv_normal[2, t] * cv_center[2, t]
-        if n_runs > 0 and off == cv_plane[n_runs - 1] and cv_normal[0, t] == cv_normal[0, t - 1] \
-                and cv_normal[1, t] == cv_normal[1, t - 1] and cv_normal[2, t] == cv_normal[2, t - 1]:
-            cv_runs[n_runs - 1, 1] = t + 1
-        else:
-            cv_runs[n_runs, 0], cv_runs[n_runs, 1], cv_plane[n_runs] = t, t + 1, off
-            n_runs += 1
-    cv_runs = cv_runs[:n_runs]
-    cv_plane = cv_plane[:n_runs]
-    cv_batch = np.zeros((CV_BATCH, n_bands, n_cv))     # deposits on the sensor targets, a photon per slot
+    n_cv = cv_row.shape[0]
     slot = 0
     cv_acc = cv_batch[0]                   # this photon's slot
-    cv_tally = np.zeros((n_bands, n_cv))   # and the chunk's sums (added to the tallies at its end)
-    cv_sq = np.zeros((n_bands, n_bands, n_cv))
-    g_r = np.empty(n_cv, dtype=np.float32)
-    g_t = np.empty(n_cv, dtype=np.float32)
-    acc = np.zeros((tally.shape[0], n_bands))     # this photon's sum per tally row
-    touched = np.zeros(tally.shape[0], dtype=np.uint8)
-    rows = np.empty(tally.shape[0], dtype=np.int64)     # the rows it touched, in order
-    tot = np.empty(n_bands)
-    seen = np.empty(CAND_CAP, dtype=np.int64)
     rh = scratch + RAYHIT
     args = scratch + ARGS
     cand_count = scratch + CAND_COUNT
@@ -1017,3 +907,158 @@ def trace_chunk(scene, intersect_fn, scratch, seed, first, count,
             tally[cv_row[t], b] += cv_tally[b, t]
             for b2 in range(n_bands):    # _control_products filled b2 >= b (x·y = y·x exactly)
                 tally_sq[cv_row[t], b, b2] += cv_sq[min(b, b2), max(b, b2), t]
+
+
+
+@njit(nogil=True, cache=True)
+def trace_chunk(scene, intersect_fn, scratch, seed, first, count,
+                geom_offset, tri_normal, tri_mat, tri_receiver,
+                mat_prob, mat_cum, mat_phong,
+                sens_kind, sens_center, sens_normal, sens_radius, sens_corners,
+                emit_kind, emit_data, emit_cdf,
+                max_depth, offset_rel, n_receivers, expected_absorption,
+                occluded_fn, nee_sensors, nee_receivers, tgt_kind, tgt_row, tgt_abs_row, tgt_ref, tgt_first,
+                tgt_count, tgt_area, tgt_center, tgt_near2, nee_tri, nee_cdf, tgt_img_near2, near_start, near_list,
+                near_r2, sensor_target, receiver_target,
+                tri_verts, mat_nee, emit_nee, picks, cop_start, cop_list, cop_box, cop_free, tri_two_sided,
+                img_picks, tri_plane, mir_point, mir_normal, mir_list, mir_cdf, mir_inv_p, mir_on, mir_box,
+                mir_one_sided, control, zone_picks, zone_f, zone_i, zone_start, tri_pid, tally, tally_sq, counters,
+                nee_stats):
+    """Trace photons ``first .. first+count-1``; add what they do to the output arrays.
+
+    Parameters (T triangles, M materials, B bands, S sensors, E emitter elements,
+    R receivers, K = S + 2R tallies):
+
+    scene, intersect_fn, scratch : int
+        Embree scene handle, address of ``rtcIntersect1``, base of this thread's
+        scratch block (:func:`kernel.embree.new_scratch`).
+    seed, first, count : int
+        Run seed and photon index range; photon i's random stream is a function
+        of ``(seed, i)`` only.
+    geom_offset : (3,) int64
+        Global triangle index = Embree ``primID + geom_offset[geomID]``.
+    tri_normal : (T, 3) float64, unit right-hand-rule normals.
+    tri_mat : (T, 2) int32, material seen from the front / back side.
+    tri_receiver : (T,) int32, receiver index or -1.
+    mat_prob : (M, 5, B) float64, probability of each event per band.
+    mat_cum : (M, 5) float64, cumulative event probabilities q shared by the bands.
+    mat_phong : (M,) float64, Phong exponent of the specular lobe (inf = mirror).
+    sens_* : transparent sensors: kind, centre (S, 3), unit normal (S, 3),
+        radius (S,), quad corners (S, 4, 3).
+    emit_kind (E,), emit_data (E, 3, 3), emit_cdf (E,) : emitter elements and the
+        cumulative distribution of their power.
+    max_depth : int, scattering events allowed before a photon is cut.
+    offset_rel : float, ray offset relative to the round-off scale of a hit: a new ray starts
+        ``offset_rel · (max(|v_i|, |p|) + |o|)`` off the surface along its normal (v_i the hit
+        triangle's vertices, p the hit, o the ray's origin; ∞-norms), which bounds Embree's float32
+        error a few ulps deep (``docs/stability.md``).
+    expected_absorption : bool, the ``weighted`` estimator (True) or ``analog``.
+    occluded_fn : int, address of ``rtcOccluded1`` (next-event shadow rays).
+    nee_sensors, nee_receivers : bool, whether sensors / receivers are
+        next-event targets (:mod:`kernel.nee`); their crossings and hits after
+        diffuse vertices are then not counted, the targets' expected values are.
+    tgt_*, nee_tri, nee_cdf, near_*, sensor_target, receiver_target : next-event
+        targets (:func:`kernel.nee.build_targets`); empty arrays for none.  ``tgt_near2`` are the
+        exclusion radii² of next events (0 for discs), ``tgt_img_near2`` those of next events through
+        mirrors.
+    tri_verts : (T, 3, 3) float64, triangle vertices (to sample points on receivers).
+    mat_nee (M,), emit_nee (E,) : uint8, next events from this material's
+        surfaces / this emitter element (0: its segments are counted instead).
+    picks : int, targets per next event (0: all; see :func:`kernel.nee.next_event`).
+    cop_start (T+1,) int64, cop_list (K,) int32 : coplanar candidates of each triangle
+        (:func:`lpy_light.geometry.coplanar_partners`); a hit on a triangle with candidates
+        picks, uniformly at random, one of it and the candidates that contain the hit point
+        and face the ray (or are two-sided).  All-zero ``cop_start``: no such choice.
+    cop_box : (T, 2, 3) float64, each triangle's bounding box, slightly widened (quick reject).
+    cop_free : (T, 2, 3) float64, a box where none of the triangle's candidates reaches
+        (:func:`lpy_light.geometry.partner_free_boxes`): hits inside it skip the tests.
+    tri_two_sided : (T,) uint8, whether each triangle is seen from both sides.
+    img_picks : float, next events through a mirror per next-event vertex, on average (0: none; fractional:
+        a random whole number with that mean; :func:`_image_event`).
+    tri_plane (T,) int32 : each triangle's mirror plane or -1; mir_point, mir_normal (P, 3) : a point and
+        the unit normal of each plane; mir_list : int32, the planes in use, drawn by the cumulative
+        probabilities mir_cdf with weights 1 / p = mir_inv_p; mir_on (P,) uint8, the planes in use as flags;
+        mir_box (P, 2, 3) each plane's triangles' bounds (slightly widened); mir_one_sided (P,) uint8.
+        A sensor crossing right after a perfect-mirror reflection on a plane in use, by a photon that
+        came there from a next-event vertex, is then covered by the image events and not counted.
+    zone_picks : float, two-step next events through the zone beside a disc per next-event vertex, on
+        average (0: none; :func:`_zone_event`); zone_f (Z, 14), zone_i (Z, 2), zone_start (targets + 1,)
+        the zones (:func:`kernel.nee.near_zones`); tri_pid (T,) int32 each triangle's plane id.
+    nee_stats : (M + E + P, 3) float64, shadow rays cast, unblocked, and the weight
+        they deposit, per material, per emitter element, then per mirror plane (image events).
+    tally (K + M + 4, B), tally_sq (K + M + 4, B, B) : float64, expected hits and
+        sums of products (band by band) of per-photon contributions: rows [0, S) sensor crossings, [S, S+R)
+        receiver incident, [S+R, K) receiver absorbed, then fates from row K:
+        weight absorbed per material (M rows), escaped, cut at max_depth, lost
+        to numerical failure, and the photon's total deposit.
+    counters : (4,) int64: rays traced, candidate overflows, scratch flushes, lost.
+    """
+    n_bands = mat_prob.shape[2]
+    n_mat = mat_prob.shape[0]
+    n_sens = sens_center.shape[0]
+    fate0 = tally.shape[0] - n_mat - 4
+    f_escaped, f_cut, f_lost = fate0 + n_mat, fate0 + n_mat + 1, fate0 + n_mat + 2
+    absorbed0 = n_sens + n_receivers
+    state = np.zeros(1, dtype=np.uint64)
+    w = np.empty(n_bands)
+    dep = np.empty(n_bands)
+    n_tgt = tgt_kind.shape[0]
+    contrib = np.empty(n_bands)
+    n_slots = 3 * (n_tgt + picks) + 2 + int(max(img_picks, zone_picks))   # near discs + picks (3 deposits
+    out_k = np.empty(n_slots, dtype=np.int64)                             # each), or image / zone events
+    out_w = np.empty((n_slots, n_bands))
+    control = control and nee_sensors and 0 < picks < n_tgt
+    n_cv = 0            # sensor targets come first
+    while control and n_cv < n_tgt and tgt_kind[n_cv] <= 1:
+        n_cv += 1
+    cv_center = np.empty((3, n_cv), dtype=np.float32)      # float32: γ's loop runs 16 wide
+    cv_normal = np.empty((3, n_cv), dtype=np.float32)
+    cv_area = np.empty(n_cv, dtype=np.float32)
+    cv_thr = np.empty((2, n_cv), dtype=np.float32)
+    cv_row = np.empty(n_cv, dtype=np.int64)
+    for t in range(n_cv):
+        for c in range(3):
+            cv_center[c, t] = tgt_center[t, c]
+            cv_normal[c, t] = sens_normal[tgt_ref[t], c]
+        cv_area[t] = tgt_area[t]
+        cv_thr[0, t] = tgt_near2[t]
+        cv_thr[1, t] = max(tgt_near2[t], near_r2[t])
+        cv_row[t] = tgt_row[t]
+    cv_runs = np.empty((n_cv, 2), dtype=np.int64)     # runs of targets on one plane with one normal:
+    cv_plane = np.empty(n_cv, dtype=np.float32)       # first, end; the plane's offset n·c
+    n_runs = 0
+    for t in range(n_cv):
+        off = cv_normal[0, t] * cv_center[0, t] + cv_normal[1, t] * cv_center[1, t] + cv_normal[2, t] * cv_center[2, t]
+        if n_runs > 0 and off == cv_plane[n_runs - 1] and cv_normal[0, t] == cv_normal[0, t - 1] \
+                and cv_normal[1, t] == cv_normal[1, t - 1] and cv_normal[2, t] == cv_normal[2, t - 1]:
+            cv_runs[n_runs - 1, 1] = t + 1
+        else:
+            cv_runs[n_runs, 0], cv_runs[n_runs, 1], cv_plane[n_runs] = t, t + 1, off
+            n_runs += 1
+    cv_runs = cv_runs[:n_runs]
+    cv_plane = cv_plane[:n_runs]
+    cv_batch = np.zeros((CV_BATCH, n_bands, n_cv))     # deposits on the sensor targets, a photon per slot
+    cv_tally = np.zeros((n_bands, n_cv))   # and the chunk's sums (added to the tallies at its end)
+    cv_sq = np.zeros((n_bands, n_bands, n_cv))
+    g_r = np.empty(n_cv, dtype=np.float32)
+    g_t = np.empty(n_cv, dtype=np.float32)
+    acc = np.zeros((tally.shape[0], n_bands))     # this photon's sum per tally row
+    touched = np.zeros(tally.shape[0], dtype=np.uint8)
+    rows = np.empty(tally.shape[0], dtype=np.int64)     # the rows it touched, in order
+    tot = np.empty(n_bands)
+    seen = np.empty(CAND_CAP, dtype=np.int64)
+    _trace_photons(scene, intersect_fn, scratch, seed, first, count,
+                   geom_offset, tri_normal, tri_mat, tri_receiver,
+                   mat_prob, mat_cum, mat_phong,
+                   sens_kind, sens_center, sens_normal, sens_radius, sens_corners,
+                   emit_kind, emit_data, emit_cdf,
+                   max_depth, offset_rel, n_receivers, expected_absorption,
+                   occluded_fn, nee_sensors, nee_receivers, tgt_kind, tgt_row, tgt_abs_row, tgt_ref, tgt_first,
+                   tgt_count, tgt_area, tgt_center, tgt_near2, nee_tri, nee_cdf, tgt_img_near2, near_start, near_list,
+                   near_r2, sensor_target, receiver_target,
+                   tri_verts, mat_nee, emit_nee, picks, cop_start, cop_list, cop_box, cop_free, tri_two_sided,
+                   img_picks, tri_plane, mir_point, mir_normal, mir_list, mir_cdf, mir_inv_p, mir_on, mir_box,
+                   mir_one_sided, control, zone_picks, zone_f, zone_i, zone_start, tri_pid, tally, tally_sq, counters,
+                   nee_stats,
+                   state, w, dep, contrib, out_k, out_w, cv_row, cv_center, cv_normal, cv_area, cv_thr, cv_runs,
+                   cv_plane, cv_batch, cv_tally, cv_sq, g_r, g_t, acc, touched, rows, tot, seen)
