@@ -20,6 +20,9 @@ rays per photon rise 3.5% (q = max over bands of the scattering probability keep
 while its brightest band would scatter), the rest is the per-event band work (B weights copied, B²
 products per tally event for the covariances).  Computing only the upper triangle of the B²
 products was tried and was slower (1.46x): the variable-start inner loop stops numba vectorising.
+Fifth session (the photon loop without reference counting, 1 thread): weighted 0.526 / 0.639 µs per
+photon, 1.21-1.24x; nee 2.21 / 5.25 µs, 2.23-2.37x (both runs faster, the one-band run more: the 12-band
+cost is in the control variate's arithmetic, which reference counting did not touch).
 """
 import argparse
 import csv
