@@ -61,12 +61,11 @@ EMIT_LINE, EMIT_TRIANGLE, EMIT_CYLINDER, EMIT_POINT, EMIT_SPHERE = 0, 1, 2, 3, 4
 SENSOR_DISC, SENSOR_QUAD = 0, 1
 
 # counters
-C_RAYS, C_CAND_OVERFLOW, C_SCRATCH_FLUSH, C_LOST, C_SHADOW = 0, 1, 2, 3, 4
-N_COUNTERS = 5
+C_RAYS, C_CAND_OVERFLOW, C_SCRATCH_FLUSH, C_LOST, C_SHADOW, C_BATCHES = 0, 1, 2, 3, 4, 5
+N_COUNTERS = 6
 
 
 _TFAR_MAX = 3.0e38
-CV_BATCH = 4          # photons per pass of :func:`_control_products` (its unrolled loop assumes 4)
 
 
 @njit(inline="always", cache=True)
@@ -158,9 +157,10 @@ def _control_deposits(vx, vy, vz, nx, ny, nz, mode, m, w, near, cv_center, cv_no
 
 @njit(cache=True, _nrt=False)
 def _fold_control(n_rows, rows, touched, acc, cv_acc, sensor_target, n_sens):
-    """End of a photon that made control deposits: fold its other deposits on the sensor targets' rows
-    into its ``cv_acc`` (B, n), so that its products are taken whole by :func:`_control_products`; the
-    photon's other rows are left to :func:`_flush` (those folded become -1 in ``rows``)."""
+    """End of a photon, with the control variate on: fold its other deposits on the sensor targets' rows
+    into its batch's ``cv_acc`` (B, n), so that the batch's products are taken whole by
+    :func:`_control_products`; the photon's other rows are left to :func:`_flush` (those folded become -1
+    in ``rows``)."""
     n_bands = acc.shape[1]
     n = cv_acc.shape[1]
     for a in range(n_rows):
@@ -175,30 +175,33 @@ def _fold_control(n_rows, rows, touched, acc, cv_acc, sensor_target, n_sens):
 
 
 @njit(cache=True, _nrt=False)
-def _control_products(cv_batch, cv_tally, cv_sq):
-    """Add the photons of ``cv_batch`` (CV_BATCH, B, n; one photon's sensor-target deposits per slot, unused
-    slots zero) to the chunk's ``cv_tally`` (B, n) and ``cv_sq`` (B, B, n) (upper triangle b ≤ b2: the caller
-    mirrors it), and clear it.
+def _control_products(cv_acc, size, cv_tally, cv_sq):
+    """Add one batch of ``size`` photons -- their summed sensor-target deposits ``cv_acc`` (B, n) -- to the
+    chunk's ``cv_tally`` (B, n) and ``cv_sq`` (B, B, n): S_b · S_b2 / size, upper triangle b ≤ b2 (the
+    caller mirrors it); clear ``cv_acc``.
 
-    The products between bands are per photon (x_k[b] · x_k[b2] summed over the slots k); taking
-    :data:`CV_BATCH` photons per pass over ``cv_sq`` reads and writes it once per batch instead of once per
-    photon: at 12 bands and 240 sensors it is 150 kB, and that traffic was the cost."""
-    n_bands, n = cv_batch.shape[1], cv_batch.shape[2]
+    Batch means: with the control variate every photon deposits on all n sensor rows, and products
+    between bands per photon (B(B+1)/2 · n of them) cost as much as the rest of a 12-band photon.  Summed
+    over batches instead, Q = Σ_j S_j S_jᵀ / m_j satisfies E[Q − T Tᵀ / N] = (n_b − 1) Σ (Σ the covariance
+    of one photon, T the total of N photons in n_b batches of m_j photons), so ``Result`` estimates
+    the covariance of T as N / (n_b − 1) · (Q − T Tᵀ / N): the per-photon formula with n_b − 1 in place
+    of N − 1 (:func:`lpy_light.simulate.effective_samples`)."""
+    n_bands, n = cv_acc.shape[0], cv_acc.shape[1]
+    inv = 1.0 / size
     for b in range(n_bands):         # contiguous over the targets: vectorises
-        x0, x1, x2, x3 = cv_batch[0, b], cv_batch[1, b], cv_batch[2, b], cv_batch[3, b]
+        x = cv_acc[b]
         tb = cv_tally[b]
         for t in range(n):
-            tb[t] += (x0[t] + x1[t]) + (x2[t] + x3[t])
+            tb[t] += x[t]
         for b2 in range(b, n_bands):
-            y0, y1, y2, y3 = cv_batch[0, b2], cv_batch[1, b2], cv_batch[2, b2], cv_batch[3, b2]
+            y = cv_acc[b2]
             sq = cv_sq[b, b2]
             for t in range(n):
-                sq[t] += (x0[t] * y0[t] + x1[t] * y1[t]) + (x2[t] * y2[t] + x3[t] * y3[t])
-    for k in range(cv_batch.shape[0]):
-        for b in range(n_bands):
-            x = cv_batch[k, b]
-            for t in range(n):
-                x[t] = 0.0
+                sq[t] += x[t] * y[t] * inv
+    for b in range(n_bands):
+        x = cv_acc[b]
+        for t in range(n):
+            x[t] = 0.0
 
 
 @njit(inline="always", cache=True)
@@ -646,10 +649,10 @@ def _trace_photons(scene, intersect_fn, scratch, seed, first, count,
                    near_r2, sensor_target, receiver_target,
                    tri_verts, mat_nee, emit_nee, picks, cop_start, cop_list, cop_box, cop_free, tri_two_sided,
                    img_picks, tri_plane, mir_point, mir_normal, mir_list, mir_cdf, mir_inv_p, mir_on, mir_box,
-                   mir_one_sided, control, zone_picks, zone_f, zone_i, zone_start, tri_pid, tally, tally_sq, counters,
-                   nee_stats,
+                   mir_one_sided, control, cv_batch, zone_picks, zone_f, zone_i, zone_start, tri_pid, tally, tally_sq,
+                   counters, nee_stats,
                    state, w, dep, contrib, out_k, out_w, cv_row, cv_center, cv_normal, cv_area, cv_thr, cv_runs,
-                   cv_plane, cv_batch, cv_tally, cv_sq, g_r, g_t, acc, touched, rows, tot, seen):
+                   cv_plane, cv_acc, cv_tally, cv_sq, g_r, g_t, acc, touched, rows, tot, seen):
     """The photon loop of :func:`trace_chunk` (its arguments, then its work arrays), compiled without
     reference counting: array views and inlined helpers here would otherwise cost an atomic
     increment and decrement each (~20 % of a rose step's CPU time, more with two threads)."""
@@ -661,8 +664,7 @@ def _trace_photons(scene, intersect_fn, scratch, seed, first, count,
     absorbed0 = n_sens + n_receivers
     n_tgt = tgt_kind.shape[0]
     n_cv = cv_row.shape[0]
-    slot = 0
-    cv_acc = cv_batch[0]                   # this photon's slot
+    in_batch = 0         # photons in the current batch of the control variate
     rh = scratch + RAYHIT
     args = scratch + ARGS
     cand_count = scratch + CAND_COUNT
@@ -676,8 +678,6 @@ def _trace_photons(scene, intersect_fn, scratch, seed, first, count,
         ox, oy, oz, dx, dy, dz, enx, eny, enz, emode, oscale = _emit(e, emit_kind, emit_data, state, offset_rel)
         w[:] = 1.0
         nh = 0
-        cv_used = False
-        cv_acc = cv_batch[slot]
         depth = 0
         after_diffuse = False   # does the current segment start at a next-event vertex?
         vx0, vy0, vz0 = ox, oy, oz   # that vertex
@@ -687,7 +687,6 @@ def _trace_photons(scene, intersect_fn, scratch, seed, first, count,
             if control:
                 _control_deposits(ox, oy, oz, enx, eny, enz, emode, 0, w, 0, cv_center, cv_normal, cv_area, cv_thr,
                                   cv_runs, cv_plane, mat_prob, g_r, g_t, cv_acc)
-                cv_used = True
             n_out = next_event(ox, oy, oz, enx, eny, enz, emode, 0, n_mat + e, w, state, scene, occluded_fn, scratch,
                                offset_rel, tgt_kind, tgt_row, tgt_abs_row, tgt_ref, tgt_first, tgt_count, tgt_area,
                                tgt_center, tgt_near2, sens_center, sens_normal, sens_radius, sens_corners, nee_tri, nee_cdf, tri_verts,
@@ -811,7 +810,6 @@ def _trace_photons(scene, intersect_fn, scratch, seed, first, count,
                     _control_deposits(px, py, pz, nx, ny, nz, V_SURFACE, m, w,
                                       1 if near_start[tri + 1] > near_start[tri] else 0, cv_center, cv_normal,
                                       cv_area, cv_thr, cv_runs, cv_plane, mat_prob, g_r, g_t, cv_acc)
-                    cv_used = True
                 n_out = next_event(px, py, pz, nx, ny, nz, V_SURFACE, m, m, w, state, scene, occluded_fn, scratch,
                                    offset_rel, tgt_kind, tgt_row, tgt_abs_row, tgt_ref, tgt_first, tgt_count,
                                    tgt_area, tgt_center, tgt_near2, sens_center, sens_normal, sens_radius, sens_corners, nee_tri, nee_cdf,
@@ -893,15 +891,14 @@ def _trace_photons(scene, intersect_fn, scratch, seed, first, count,
             dx, dy, dz = dx * inv, dy * inv, dz * inv
             eps = side * offset_rel * (pscale + oscale)
             ox, oy, oz = px + eps * nx, py + eps * ny, pz + eps * nz
-        if cv_used:
+        if control:          # batches of cv_batch photons by photon index: the same on any number of threads
             _fold_control(nh, rows, touched, acc, cv_acc, sensor_target, n_sens)
-            slot += 1
-            if slot == CV_BATCH:
-                _control_products(cv_batch, cv_tally, cv_sq)
-                slot = 0
+            in_batch += 1
+            if (first + i + 1) % cv_batch == 0 or i == count - 1:
+                _control_products(cv_acc, in_batch, cv_tally, cv_sq)
+                counters[C_BATCHES] += 1
+                in_batch = 0
         _flush(nh, rows, touched, acc, tally, tally_sq, fate0, tot)
-    if slot > 0:
-        _control_products(cv_batch, cv_tally, cv_sq)
     for t in range(n_cv):
         for b in range(n_bands):
             tally[cv_row[t], b] += cv_tally[b, t]
@@ -922,8 +919,8 @@ def trace_chunk(scene, intersect_fn, scratch, seed, first, count,
                 near_r2, sensor_target, receiver_target,
                 tri_verts, mat_nee, emit_nee, picks, cop_start, cop_list, cop_box, cop_free, tri_two_sided,
                 img_picks, tri_plane, mir_point, mir_normal, mir_list, mir_cdf, mir_inv_p, mir_on, mir_box,
-                mir_one_sided, control, zone_picks, zone_f, zone_i, zone_start, tri_pid, tally, tally_sq, counters,
-                nee_stats):
+                mir_one_sided, control, cv_batch, zone_picks, zone_f, zone_i, zone_start, tri_pid, tally, tally_sq,
+                counters, nee_stats):
     """Trace photons ``first .. first+count-1``; add what they do to the output arrays.
 
     Parameters (T triangles, M materials, B bands, S sensors, E emitter elements,
@@ -981,6 +978,10 @@ def trace_chunk(scene, intersect_fn, scratch, seed, first, count,
         mir_box (P, 2, 3) each plane's triangles' bounds (slightly widened); mir_one_sided (P,) uint8.
         A sensor crossing right after a perfect-mirror reflection on a plane in use, by a photon that
         came there from a next-event vertex, is then covered by the image events and not counted.
+    control : bool, the control variate (with sensor targets and random picks): every sensor's γ at every
+        next-event vertex (:func:`_control_deposits`); cv_batch : int, photons per batch of its products
+        between bands (:func:`_control_products`; batches start at multiples of cv_batch, counted in
+        ``counters[C_BATCHES]``; 1: per photon, like every other row).
     zone_picks : float, two-step next events through the zone beside a disc per next-event vertex, on
         average (0: none; :func:`_zone_event`); zone_f (Z, 14), zone_i (Z, 2), zone_start (targets + 1,)
         the zones (:func:`kernel.nee.near_zones`); tri_pid (T,) int32 each triangle's plane id.
@@ -991,7 +992,8 @@ def trace_chunk(scene, intersect_fn, scratch, seed, first, count,
         receiver incident, [S+R, K) receiver absorbed, then fates from row K:
         weight absorbed per material (M rows), escaped, cut at max_depth, lost
         to numerical failure, and the photon's total deposit.
-    counters : (4,) int64: rays traced, candidate overflows, scratch flushes, lost.
+    counters : (6,) int64: rays traced, candidate overflows, scratch flushes, lost, shadow rays, control
+        variate batches.
     """
     n_bands = mat_prob.shape[2]
     n_mat = mat_prob.shape[0]
@@ -1037,7 +1039,7 @@ def trace_chunk(scene, intersect_fn, scratch, seed, first, count,
             n_runs += 1
     cv_runs = cv_runs[:n_runs]
     cv_plane = cv_plane[:n_runs]
-    cv_batch = np.zeros((CV_BATCH, n_bands, n_cv))     # deposits on the sensor targets, a photon per slot
+    cv_acc = np.zeros((n_bands, n_cv))     # deposits on the sensor targets, summed over a batch of photons
     cv_tally = np.zeros((n_bands, n_cv))   # and the chunk's sums (added to the tallies at its end)
     cv_sq = np.zeros((n_bands, n_bands, n_cv))
     g_r = np.empty(n_cv, dtype=np.float32)
@@ -1058,7 +1060,7 @@ def trace_chunk(scene, intersect_fn, scratch, seed, first, count,
                    near_r2, sensor_target, receiver_target,
                    tri_verts, mat_nee, emit_nee, picks, cop_start, cop_list, cop_box, cop_free, tri_two_sided,
                    img_picks, tri_plane, mir_point, mir_normal, mir_list, mir_cdf, mir_inv_p, mir_on, mir_box,
-                   mir_one_sided, control, zone_picks, zone_f, zone_i, zone_start, tri_pid, tally, tally_sq, counters,
-                   nee_stats,
+                   mir_one_sided, control, cv_batch, zone_picks, zone_f, zone_i, zone_start, tri_pid, tally, tally_sq,
+                   counters, nee_stats,
                    state, w, dep, contrib, out_k, out_w, cv_row, cv_center, cv_normal, cv_area, cv_thr, cv_runs,
-                   cv_plane, cv_batch, cv_tally, cv_sq, g_r, g_t, acc, touched, rows, tot, seen)
+                   cv_plane, cv_acc, cv_tally, cv_sq, g_r, g_t, acc, touched, rows, tot, seen)

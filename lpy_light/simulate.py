@@ -19,7 +19,7 @@ import numpy as np
 from .errors import InputError, ResourceError
 from .kernel import embree
 from .kernel.nee import build_targets, near_zones
-from .kernel.trace import N_COUNTERS, trace_chunk
+from .kernel.trace import C_BATCHES, N_COUNTERS, trace_chunk
 from .materials import SPECULAR_R, sampling_tables
 from .geometry import coplanar_partners, mirror_planes, partner_free_boxes, plane_ids, triangle_normals
 
@@ -101,7 +101,8 @@ class Result:
     depth, lost, and the per-photon total (closure: N in expectation);
     ``tally_prod`` (rows, B, B) the sums of products between bands of
     per-photon contributions (covariances: a sum of bands or a ratio of two
-    gets an honest σ from :meth:`combination`).
+    gets an honest σ from :meth:`combination`) -- per batch of photons for the
+    sensor rows of a run with the control variate (:func:`effective_samples`).
     """
 
     photons: int
@@ -138,30 +139,28 @@ class Result:
         """(accounted, std): per band, the photons' total deposits (N in expectation), each (B,)."""
         return self.tally[-1], self.tally_std[-1]
 
-    @staticmethod
-    def _std(total, sq, n):
-        if n < 2:
-            return np.full_like(total, np.nan)
-        var = n / (n - 1.0) * np.maximum(sq - total * total / n, 0.0)
-        return np.sqrt(var)
+    @property
+    def samples(self) -> np.ndarray:
+        """Independent samples behind each row's sums of products, (rows,): see :func:`effective_samples`."""
+        return effective_samples(self.photons, self.counters, len(self.tally), self.n_sensors)
 
     @property
     def tally_std(self) -> np.ndarray:
         """Standard error of each tally, (K, B)."""
-        return self._std(self.tally, self.tally_sq, self.photons)
+        return _std(self.tally, self.tally_sq, self.photons, self.samples)
 
     @property
     def tally_sq(self) -> np.ndarray:
-        """Sums of squared per-photon contributions, (rows, B): the diagonal of ``tally_prod``."""
+        """Sums of squared contributions, (rows, B): the diagonal of ``tally_prod``."""
         return np.diagonal(self.tally_prod, axis1=1, axis2=2)
 
     def covariance(self, rows) -> np.ndarray:
         """Covariance matrix between bands of the estimated totals of ``rows``, (len(rows), B, B)."""
         n = self.photons
         t = self.tally[rows]
-        if n < 2:
-            return np.full(self.tally_prod[rows].shape, np.nan)
-        return n / (n - 1.0) * (self.tally_prod[rows] - t[:, :, None] * t[:, None, :] / n)
+        m = self.samples[rows][:, None, None]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return np.where(m >= 2, n / (m - 1.0), np.nan) * (self.tally_prod[rows] - t[:, :, None] * t[:, None, :] / n)
 
     def combination(self, rows, weights):
         """Σ_b weights[b] · tally[row, b] and its standard error (bands' covariances included), each (len(rows),)."""
@@ -210,6 +209,7 @@ class KernelScene:
         self.nee_sensors = self.nee_receivers = estimator == "nee"
         self.nee_picks = 1          # targets per next event, drawn at random (0: all of them)
         self.nee_control = True     # with picks: γ of every sensor at every vertex, picks carry the rest
+        self.nee_batch = 8          # photons per batch of the control variate's products between bands
         self.nee_receiver_mask = None   # (R,) bool: receivers that are next-event targets (None: all)
         self.nee_images = 0.5       # next events through a perfect mirror per vertex, on average (sensors; 0: none)
         self.nee_zones = 0.3        # two-step next events through the surface beside a disc, per vertex (0: none)
@@ -443,6 +443,7 @@ class KernelScene:
                     self.cop_free, self.tri_two_sided,
                     float(self.nee_images) if self.nee_sensors else 0.0, self.tri_plane, self.mir_point, self.mir_normal,
                     *self._mirror_draw(), self.mir_on, self.mir_box, self.mir_one_sided, bool(self.nee_control),
+                    int(self.nee_batch),
                     float(self.nee_zones) if self.nee_sensors else 0.0, *self.zones, self.tri_pid, *out)
         return out
 
@@ -451,14 +452,41 @@ def default_threads() -> int:
     return max(1, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1))
 
 
-def relative_sigma(tally, tally_prod, n, rows) -> np.ndarray:
-    """σ / value of the given tally rows (all bands), for rows with a value > 0; shape (k,)."""
+def effective_samples(n, counters, n_rows, n_sensors) -> np.ndarray:
+    """Independent samples behind each tally row's sums of products, (n_rows,) float.
+
+    Every row sums per-photon products, so N photons are N samples -- except the sensor rows of a
+    ``nee`` run with the control variate, whose products are taken per batch of photons
+    (:func:`lpy_light.kernel.trace._control_products`): ``counters[C_BATCHES]`` samples there.
+    """
+    m = np.full(n_rows, float(n))
+    batches = int(counters[C_BATCHES]) if len(counters) > C_BATCHES else 0
+    if batches:
+        m[:n_sensors] = batches
+    return m
+
+
+def _std(total, sq, n, samples):
+    """Standard error of totals of n photons from their sums of squares, (rows, B); ``samples`` (rows,):
+    N / (m − 1) · (Σ x² − T² / N) with m the row's independent samples (N, or its batches)."""
+    m = np.asarray(samples, dtype=float).reshape(-1, *([1] * (np.ndim(total) - 1)))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        var = np.where(m >= 2, n / (m - 1.0), np.nan) * np.maximum(sq - total * total / max(n, 1), 0.0)
+    return np.sqrt(var)
+
+
+def relative_sigma(tally, tally_prod, n, rows, samples=None) -> np.ndarray:
+    """σ / value of the given tally rows (all bands), for rows with a value > 0; shape (k,).
+    ``samples`` (all rows,): :func:`effective_samples` (default: n for every row)."""
     t, sq = tally[rows], np.diagonal(tally_prod[rows], axis1=1, axis2=2)
     if n < 2:
         return np.full(t.size, np.inf)
-    std = np.sqrt(n / (n - 1.0) * np.maximum(sq - t * t / n, 0.0))
+    m = np.full(len(tally), float(n)) if samples is None else np.asarray(samples, dtype=float)
+    std = _std(t, sq, n, m[rows])
     keep = t > 0
-    return (std[keep] / t[keep]).ravel()
+    with np.errstate(invalid="ignore"):
+        rel = np.where(np.isfinite(std), std, np.inf)[keep] / t[keep]
+    return rel.ravel()
 
 
 def run(kscene: KernelScene, photons: int, seed: int = 1, threads: int | None = None, progress=None,
@@ -528,7 +556,8 @@ def run(kscene: KernelScene, photons: int, seed: int = 1, threads: int | None = 
                 acc, done = state
                 worst = None         # with ``precision``: the largest relative σ so far
                 if precision is not None and done >= min(min_photons, photons) and done < photons:
-                    rel = relative_sigma(acc[0], acc[1], done, precision_rows)
+                    rel = relative_sigma(acc[0], acc[1], done, precision_rows,
+                                         effective_samples(done, acc[2], kscene.n_rows, kscene.n_sensors))
                     worst = float(rel.max()) if rel.size else float("inf")   # nothing tallied yet
                 if progress:
                     # with ``precision``, the photons it should take (σ ∝ 1/√N), capped at ``photons``
@@ -553,7 +582,8 @@ def run(kscene: KernelScene, photons: int, seed: int = 1, threads: int | None = 
                   partial=partial, interrupted=interrupted)
     if precision is not None:
         if not reached and done == photons:
-            rel = relative_sigma(acc[0], acc[1], done, precision_rows)
+            rel = relative_sigma(acc[0], acc[1], done, precision_rows,
+                                 effective_samples(done, acc[2], kscene.n_rows, kscene.n_sensors))
             reached = bool(rel.size and rel.max() <= precision)
         result.extra["precision_reached"] = reached
         result.extra["precision"] = precision

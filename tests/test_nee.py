@@ -1,4 +1,6 @@
 """Next-event tallies (estimator "nee"): unbiased against quadrature and against analog counting."""
+import math
+
 import numpy as np
 import pytest
 from numba import njit
@@ -6,6 +8,7 @@ from numba import njit
 from lpy_light import simulate
 from lpy_light.kernel.nee import disc_point_by_solid_angle
 from lpy_light.kernel.rng import seed_stream, uniform
+from lpy_light.kernel.trace import C_BATCHES
 from lpy_light.scene import load_scene
 from scenes import box, lamp_rectangle, rad_polygon, rectangle_to_disc_fraction, write_scene
 
@@ -283,11 +286,11 @@ def test_control_variate_is_unbiased_and_lowers_the_variance(tmp_path):
 
 
 def test_control_variate_keeps_the_covariances_between_bands(tmp_path):
-    """The control deposits' products between bands are per photon (batched over photons for speed):
-    in a grey room the three bands are one and the same, so every sensor's 3 x 3 covariance is one number
-    (an unmirrored triangle breaks that: checked), and across seeds the spread of the band sum matches its
-    reported σ (a slot not advanced, so that photons' deposits pile up before their products are taken,
-    breaks that: checked; a σ summed as if the bands were independent would be √3 too small)."""
+    """The control deposits' products between bands are taken per batch of photons: in a grey room the
+    three bands are one and the same, so every sensor's 3 x 3 covariance is one number (an unmirrored
+    triangle breaks that: checked), and across seeds the spread of the band sum matches its reported σ (a
+    σ summed as if the bands were independent would be √3 too small; batch products counted as N samples
+    instead of n_b, √8 too small)."""
     scene = write_scene(tmp_path, GRID_ROOM, GRID, toml_extra="bands = [[400, 500], [500, 600], [600, 700]]\n")
     chamber = load_scene(scene)
     rows = np.arange(len(GRID))
@@ -304,6 +307,33 @@ def test_control_variate_keeps_the_covariances_between_bands(tmp_path):
     values, sigmas = np.array(values), np.array(sigmas)
     ratio = np.mean(values.var(axis=0, ddof=1)) / np.mean(sigmas ** 2)     # pooled over 49 sensors
     assert 0.7 < ratio < 1.4, ratio
+
+
+def test_batched_products_give_the_per_photon_sigma(tmp_path):
+    """The control variate's products between bands, summed per batch of 8 photons (:func:`effective_samples`:
+    N / (n_b − 1) · (Σ S Sᵀ / m − T Tᵀ / N)), give the same σ as per-photon products (batch size 1) on the same
+    photons, and the same sums; without the 1 / m or with N samples in place of n_b, σ would be √8 too large or
+    too small.  A run without the control variate keeps N samples on every row."""
+    scene = write_scene(tmp_path, GRID_ROOM, GRID, toml_extra="bands = [[400, 500], [500, 600], [600, 700]]\n")
+    chamber = load_scene(scene)
+    out = {}
+    for m in (1, 8):
+        ks = simulate.KernelScene(chamber, "nee")
+        ks.nee_batch = m
+        out[m] = simulate.run(ks, 40_001, seed=7, threads=2)
+    one, eight = out[1], out[8]
+    assert one.counters[C_BATCHES] == 40_001 and eight.counters[C_BATCHES] == math.ceil(40_001 / 8)
+    np.testing.assert_allclose(eight.tally, one.tally, rtol=1e-12, atol=1e-12 * one.tally.max())
+    assert np.all(eight.samples[:len(GRID)] == eight.counters[C_BATCHES])
+    assert np.all(eight.samples[len(GRID):] == 40_001)
+    ratio = eight.sensors()[1] / one.sensors()[1]          # (49 sensors, 3 bands)
+    assert 0.95 < np.median(ratio) < 1.06, np.median(ratio)
+    assert 0.8 < ratio.min() and ratio.max() < 1.25, (ratio.min(), ratio.max())
+    rows = np.arange(len(GRID))
+    s1, s8 = one.combination(rows, [1.0, 1.0, 1.0])[1], eight.combination(rows, [1.0, 1.0, 1.0])[1]
+    assert 0.95 < np.median(s8 / s1) < 1.06
+    plain = simulate.run(simulate.KernelScene(chamber, "weighted"), 5_000, seed=7, threads=2)
+    assert plain.counters[C_BATCHES] == 0 and np.all(plain.samples == 5_000)
 
 
 def test_pruning_drops_mirror_planes_that_bring_little(room):
