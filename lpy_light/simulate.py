@@ -540,41 +540,50 @@ def run(kscene: KernelScene, photons: int, seed: int = 1, threads: int | None = 
     # (sums, photons) change together in one assignment, so that an interrupt (KeyboardInterrupt)
     # arriving anywhere leaves the sums of exactly ``done`` photons: a correctly normalised prefix
     state = (acc, 0)
-    with ThreadPoolExecutor(max_workers=threads) as pool:
-        pending = []
-        next_chunk = 0
-        try:
-            while next_chunk < n_chunks or pending:
-                while next_chunk < n_chunks and len(pending) < window:
-                    first, count = chunk(next_chunk)
-                    pending.append((count, pool.submit(kscene.trace, seed, first, count)))
-                    next_chunk += 1
-                count, fut = pending[0]
-                part = fut.result()
-                state = ([a + p for a, p in zip(state[0], part)], state[1] + count)
-                pending.pop(0)
-                acc, done = state
-                worst = None         # with ``precision``: the largest relative σ so far
-                if precision is not None and done >= min(min_photons, photons) and done < photons:
-                    rel = relative_sigma(acc[0], acc[1], done, precision_rows,
-                                         effective_samples(done, acc[2], kscene.n_rows, kscene.n_sensors))
-                    worst = float(rel.max()) if rel.size else float("inf")   # nothing tallied yet
-                if progress:
-                    # with ``precision``, the photons it should take (σ ∝ 1/√N), capped at ``photons``
-                    total = photons if not worst or not np.isfinite(worst) else \
-                        int(min(photons, max(done, done * (worst / precision) ** 2)))
-                    progress(done, total, time.perf_counter() - start)
-                if stop is not None and stop() and done < photons:
-                    partial = True
-                    break
-                if worst is not None and worst <= precision:
-                    reached = True
-                    break
-        except KeyboardInterrupt:
-            partial, interrupted = state[1] < photons, True
-        finally:
-            for _, fut in pending:
-                fut.cancel()
+    # the control variate's products are taken per batch of nee_batch photons (kernel.trace._control_products);
+    # a run too short for 64 batches takes them per photon, so that its σ rests on enough samples
+    batch = getattr(kscene, "nee_batch", None)
+    if batch is not None and photons < 64 * batch:
+        kscene.nee_batch = 1
+    try:
+        with ThreadPoolExecutor(max_workers=threads) as pool:
+            pending = []
+            next_chunk = 0
+            try:
+                while next_chunk < n_chunks or pending:
+                    while next_chunk < n_chunks and len(pending) < window:
+                        first, count = chunk(next_chunk)
+                        pending.append((count, pool.submit(kscene.trace, seed, first, count)))
+                        next_chunk += 1
+                    count, fut = pending[0]
+                    part = fut.result()
+                    state = ([a + p for a, p in zip(state[0], part)], state[1] + count)
+                    pending.pop(0)
+                    acc, done = state
+                    worst = None         # with ``precision``: the largest relative σ so far
+                    if precision is not None and done >= min(min_photons, photons) and done < photons:
+                        rel = relative_sigma(acc[0], acc[1], done, precision_rows,
+                                             effective_samples(done, acc[2], kscene.n_rows, kscene.n_sensors))
+                        worst = float(rel.max()) if rel.size else float("inf")   # nothing tallied yet
+                    if progress:
+                        # with ``precision``, the photons it should take (σ ∝ 1/√N), capped at ``photons``
+                        total = photons if not worst or not np.isfinite(worst) else \
+                            int(min(photons, max(done, done * (worst / precision) ** 2)))
+                        progress(done, total, time.perf_counter() - start)
+                    if stop is not None and stop() and done < photons:
+                        partial = True
+                        break
+                    if worst is not None and worst <= precision:
+                        reached = True
+                        break
+            except KeyboardInterrupt:
+                partial, interrupted = state[1] < photons, True
+            finally:
+                for _, fut in pending:
+                    fut.cancel()
+    finally:
+        if batch is not None:
+            kscene.nee_batch = batch
     acc, done = state
     seconds = time.perf_counter() - start
     result = Result(done, acc[0], acc[1], acc[2], seconds, threads, seed, kscene.n_sensors, kscene.n_receivers,
