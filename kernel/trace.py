@@ -114,7 +114,7 @@ def _flush(n_rows, rows, touched, acc, tally, tally_sq, fate0, tot):
 @njit(cache=True, _nrt=False)
 def _control_deposits(vx, vy, vz, nx, ny, nz, mode, m, w, near, cv_center, cv_normal, cv_area, cv_thr, cv_runs,
                       cv_plane, mat_prob, g_r, g_t, cv_acc):
-    """Add γ (:func:`kernel.nee.point_view`) of every sensor target, seen from v, to this photon's ``cv_acc``
+    """Add γ (:func:`kernel.nee.point_view`) of every sensor target, seen from v, to its batch's ``cv_acc``
     (B, n) -- except where a pick of :func:`kernel.nee.next_event` would not serve it (inside an exclusion
     radius, or a near disc with an event of its own: ``cv_thr[near]`` (2, n) holds those radii²).
 
