@@ -102,6 +102,22 @@ def _tri_point(a, u1, u2):
 
 
 @njit(inline="always", cache=True)
+def mesh_point(t, u1, u2, u3, tgt_first, tgt_count, nee_tri, nee_cdf, tri_verts):
+    """A point uniform on mesh target t (by area) from three uniforms: ``(triangle, x, y, z)``; u3 picks the
+    triangle from t's cumulative areas ``nee_cdf[tgt_first[t] : tgt_first[t] + tgt_count[t]]``."""
+    lo, hi = tgt_first[t], tgt_first[t] + tgt_count[t] - 1
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if nee_cdf[mid] > u3:
+            hi = mid
+        else:
+            lo = mid + 1
+    g = nee_tri[lo]
+    px, py, pz = _tri_point(tri_verts[g], u1, u2)
+    return g, px, py, pz
+
+
+@njit(inline="always", cache=True)
 def _tri_area(c, i, j, k):
     ax, ay, az = c[j, 0] - c[i, 0], c[j, 1] - c[i, 1], c[j, 2] - c[i, 2]
     bx, by, bz = c[k, 0] - c[i, 0], c[k, 1] - c[i, 1], c[k, 2] - c[i, 2]
@@ -331,15 +347,7 @@ def next_event(vx, vy, vz, nx, ny, nz, mode, m, stat, w, state, scene, occluded_
                 continue
             px, py, pz = sensor_point(kind, s, u1, u2, u3, sens_center, sens_normal, sens_radius, sens_corners)
         else:
-            lo, hi = tgt_first[t], tgt_first[t] + tgt_count[t] - 1
-            while lo < hi:
-                mid = (lo + hi) // 2
-                if nee_cdf[mid] > u3:
-                    hi = mid
-                else:
-                    lo = mid + 1
-            g = nee_tri[lo]
-            px, py, pz = _tri_point(tri_verts[g], u1, u2)
+            g, px, py, pz = mesh_point(t, u1, u2, u3, tgt_first, tgt_count, nee_tri, nee_cdf, tri_verts)
             mx, my, mz = tri_normal[g, 0], tri_normal[g, 1], tri_normal[g, 2]
         dx, dy, dz = px - vx, py - vy, pz - vz
         dist2 = dx * dx + dy * dy + dz * dz

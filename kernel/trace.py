@@ -46,8 +46,9 @@ from .embree import (ARGS, CAND, CAND_CAP, CAND_COUNT, DIR, GEOM_ID, HIT_U, HIT_
                      PRIM_ID, RAYHIT, TFAR, TNEAR)
 from .ptr import call_ptr3, load_f32, load_i64, load_u32, store_f32, store_i64, store_u32
 from .rng import seed_stream, uniform
-from .nee import (_ZERO32, _gamma32, point_view, view_factors, INV_4PI, V_ISOTROPIC, V_LAMBERT, V_SURFACE, disc_point_by_solid_angle, next_event, sensor_point,
-                  set_ray, visible)
+from .nee import (_ZERO32, _gamma32, point_view, view_factors, END_REL, INV_4PI, T_DISC, T_MESH2, V_ISOTROPIC,
+                  V_LAMBERT, V_SURFACE, disc_point_by_solid_angle, mesh_point, next_event, sensor_point, set_ray,
+                  visible)
 from .sampling import cosine_hemisphere, mirror, phong_lobe, to_world, uniform_sphere
 
 # scattering events, in the order their probabilities are accumulated
@@ -303,22 +304,28 @@ def _hit_on_plane(scene, intersect_fn, rh, args, plane_of, plane, dx, dy, dz, ge
 
 @njit(cache=True, _nrt=False)
 def _image_event(vx, vy, vz, nx, ny, nz, mode, m, w, state, scene, intersect_fn, occluded_fn, scratch, offset_rel,
-                 vscale, tgt_kind, tgt_row, tgt_ref, tgt_area, tgt_center, tgt_near2, sens_center, sens_normal,
+                 vscale, tgt_kind, tgt_row, tgt_abs_row, tgt_ref, tgt_first, tgt_count, nee_tri, nee_cdf, tgt_area,
+                 tgt_center, tgt_near2, sens_center, sens_normal,
                  sens_radius, sens_corners, geom_offset, tri_verts, tri_normal, tri_mat, tri_two_sided, mat_prob,
                  mat_phong, cop_start, cop_list, cop_box, cop_free, tri_plane, mir_point, mir_normal, mir_list,
                  mir_cdf, mir_inv_p, mir_box, mir_one_sided, n_draw, picks, contrib, out_k, out_w, counters,
                  nee_stats, stat0):
     """Next events through one perfect mirror: the expected light that the segment leaving v brings to a
-    transparent sensor after one specular reflection on a mirror plane (the image method).
+    target (transparent sensor or mesh) after one specular reflection on a mirror plane (the image method).
 
-    For ``n_draw`` draws (a random whole number whose mean is ``picks``, see :func:`_n_images`): a target t (uniform over the targets; only sensors are served) and a mirror plane P
-    (``mir_list[k]``, k drawn from the cumulative ``mir_cdf``; its weight ``mir_inv_p[k]`` = 1 / p_k); a point x on t, its image x' across P; the ray v → x' must first meet a
-    triangle of P (after the coplanar pick, as a photon would), from a side whose material is a perfect
-    mirror, and the leg from there to x must be free.  Deposit
-    w · f_v(ω) · P_spec,b · A_t |cos θ_x| / |x' − v|² · n_targets / (p_k · picks)  (a mirror keeps solid angle).
+    For ``n_draw`` draws (a random whole number whose mean is ``picks``, see :func:`_n_images`): a target t
+    (uniform over the targets) and a mirror plane P (``mir_list[k]``, k drawn from the cumulative ``mir_cdf``;
+    its weight ``mir_inv_p[k]`` = 1 / p_k); a point x on t (a disc's by solid angle as seen from v's image, a
+    quad's or a mesh's by area), its image x' across P; the ray v → x' must first meet a triangle of P (after
+    the coplanar pick, as a photon would), from a side whose material is a perfect mirror, and the leg from
+    there to x must be free (for a mesh, up to just short of x, as :func:`next_event`'s shadow rays).  Deposit
+    w · f_v(ω) · P_spec,b · A_t |cos θ_x| / |x' − v|² · n_targets / (p_k · picks)  (a mirror keeps solid angle),
+    and on a mesh with an absorbed row that times the absorptance of the side met.  Sensors and one-sided
+    meshes are met from their front only, two-sided meshes from either side.
     A vertex whose image across P lies within the target's exclusion radius makes no such event: the
     crossing is counted instead (:func:`trace_chunk` applies the same test).  ``nee_stats[stat0 + P]``
-    counts rays cast, paths found, weight deposited.  Returns the number of deposits in ``out_k``/``out_w``.
+    counts rays cast, paths found, weight deposited.  Returns the number of deposits in ``out_k``/``out_w``
+    (at most two per draw).
     """
     n_bands = w.shape[0]
     n_tgt = tgt_kind.shape[0]
@@ -336,8 +343,6 @@ def _image_event(vx, vy, vz, nx, ny, nz, mode, m, w, state, scene, intersect_fn,
         pl = mir_list[k]
         u1, u2, u3 = uniform(state), uniform(state), uniform(state)
         kind = tgt_kind[t]
-        if kind != 0 and kind != 1:
-            continue                                   # meshes (receivers) are not served through mirrors
         qx, qy, qz = mir_point[pl, 0], mir_point[pl, 1], mir_point[pl, 2]
         mx, my, mz = mir_normal[pl, 0], mir_normal[pl, 1], mir_normal[pl, 2]
         sv = (vx - qx) * mx + (vy - qy) * my + (vz - qz) * mz
@@ -347,16 +352,21 @@ def _image_event(vx, vy, vz, nx, ny, nz, mode, m, w, state, scene, intersect_fn,
         ex, ey, ez = ix - tgt_center[t, 0], iy - tgt_center[t, 1], iz - tgt_center[t, 2]
         if ex * ex + ey * ey + ez * ez < tgt_near2[t]:
             continue                                   # too close (unfolded): the crossing is counted
-        s = tgt_ref[t]
-        snx, sny, snz = sens_normal[s, 0], sens_normal[s, 1], sens_normal[s, 2]
-        if kind == 0:                                  # a disc: drawn by solid angle as seen from v's image
-            px, py, pz, omega = disc_point_by_solid_angle(ix, iy, iz, s, u1, u2, sens_center, sens_normal,
-                                                          sens_radius)
-            if omega == 0.0:
-                continue
+        g = -1                                         # a mesh target's triangle
+        omega = 0.0
+        if kind >= T_MESH2:
+            g, px, py, pz = mesh_point(t, u1, u2, u3, tgt_first, tgt_count, nee_tri, nee_cdf, tri_verts)
+            snx, sny, snz = tri_normal[g, 0], tri_normal[g, 1], tri_normal[g, 2]
         else:
-            px, py, pz = sensor_point(kind, s, u1, u2, u3, sens_center, sens_normal, sens_radius, sens_corners)
-            omega = 0.0
+            s = tgt_ref[t]
+            snx, sny, snz = sens_normal[s, 0], sens_normal[s, 1], sens_normal[s, 2]
+            if kind == T_DISC:                         # a disc: drawn by solid angle as seen from v's image
+                px, py, pz, omega = disc_point_by_solid_angle(ix, iy, iz, s, u1, u2, sens_center, sens_normal,
+                                                              sens_radius)
+                if omega == 0.0:
+                    continue
+            else:
+                px, py, pz = sensor_point(kind, s, u1, u2, u3, sens_center, sens_normal, sens_radius, sens_corners)
         sx = (px - qx) * mx + (py - qy) * my + (pz - qz) * mz
         if sx * sv <= 0.0:
             continue                                   # x and v on opposite sides of P: no reflection joins them
@@ -368,8 +378,8 @@ def _image_event(vx, vy, vz, nx, ny, nz, mode, m, w, state, scene, intersect_fn,
         if not (mir_box[pl, 0, 0] <= rx <= mir_box[pl, 1, 0] and mir_box[pl, 0, 1] <= ry <= mir_box[pl, 1, 1]
                 and mir_box[pl, 0, 2] <= rz <= mir_box[pl, 1, 2]):
             continue                                   # misses the mirror's bounds
-        if (px - rx) * snx + (py - ry) * sny + (pz - rz) * snz >= 0.0:
-            continue                                   # would reach the sensor from behind
+        if kind != T_MESH2 and (px - rx) * snx + (py - ry) * sny + (pz - rz) * snz >= 0.0:
+            continue                                   # would reach the sensor (one-sided mesh) from behind
         # first leg: v towards x' (x's image), unfolded length L
         jx, jy, jz = px - 2.0 * sx * mx, py - 2.0 * sx * my, pz - 2.0 * sx * mz
         dx, dy, dz = jx - vx, jy - vy, jz - vz
@@ -400,7 +410,7 @@ def _image_event(vx, vy, vz, nx, ny, nz, mode, m, w, state, scene, intersect_fn,
             continue
         fx, fy, fz = fx / d2, fy / d2, fz / d2
         cos_x = fx * snx + fy * sny + fz * snz
-        if cos_x >= 0.0:
+        if kind != T_MESH2 and cos_x >= 0.0:
             continue
         any_light = False
         for b in range(n_bands):
@@ -411,14 +421,18 @@ def _image_event(vx, vy, vz, nx, ny, nz, mode, m, w, state, scene, intersect_fn,
                 f *= cos_v / math.pi
             else:
                 f *= mat_prob[m, 0 if cos_v > 0.0 else 2, b] * abs(cos_v) / math.pi
-            contrib[b] = w[b] * f * scale * mir_inv_p[k] * (omega if kind == 0 else tgt_area[t] * abs(cos_x) / L2)
+            contrib[b] = w[b] * f * scale * mir_inv_p[k] * (omega if kind == T_DISC else tgt_area[t] * abs(cos_x) / L2)
             any_light = any_light or contrib[b] > 0.0
         if not any_light:
             continue
         hmag = max(_magnitude(tri_verts[tri]), abs(hx), abs(hy), abs(hz))
         pmag = max(abs(px), abs(py), abs(pz))
+        if g >= 0:                                     # a mesh target is a surface: its triangle's round-off
+            pmag = max(pmag, _magnitude(tri_verts[g]))
         eps2 = offset_rel * (hmag + vmag)
         tfar = d2 - offset_rel * (hmag + pmag) * 2.0
+        if g >= 0:                                     # stop short of its float32 plane (as next_event does)
+            tfar -= END_REL * d2
         if tfar <= 0.0:
             continue
         counters[4] += 1
@@ -431,6 +445,12 @@ def _image_event(vx, vy, vz, nx, ny, nz, mode, m, w, state, scene, intersect_fn,
             out_w[n_out, b] = contrib[b]
             nee_stats[stat0 + pl, 2] += contrib[b]
         n_out += 1
+        if g >= 0 and tgt_abs_row[t] >= 0:             # what the side met absorbs
+            ma = tri_mat[g, 0] if cos_x < 0.0 else tri_mat[g, 1]
+            out_k[n_out] = tgt_abs_row[t]
+            for b in range(n_bands):
+                out_w[n_out, b] = contrib[b] * mat_prob[ma, ABSORB, b]
+            n_out += 1
     return n_out
 
 
@@ -668,7 +688,7 @@ def _trace_photons(scene, intersect_fn, scratch, seed, first, count,
     rh = scratch + RAYHIT
     args = scratch + ARGS
     cand_count = scratch + CAND_COUNT
-    img_on = img_picks > 0.0 and nee_sensors and n_tgt > 0 and mir_list.shape[0] > 0
+    img_on = img_picks > 0.0 and (nee_sensors or nee_receivers) and n_tgt > 0 and mir_list.shape[0] > 0
     zone_on = zone_picks > 0.0 and nee_sensors and zone_i.shape[0] > 0 and 0 < picks < n_tgt
     stat_planes = n_mat + emit_nee.shape[0]
 
@@ -697,7 +717,8 @@ def _trace_photons(scene, intersect_fn, scratch, seed, first, count,
             n_img = _n_images(img_picks, state) if img_on and max_depth > 0 else 0
             if n_img > 0:
                 n_out = _image_event(ox, oy, oz, enx, eny, enz, emode, 0, w, state, scene, intersect_fn, occluded_fn,
-                                     scratch, offset_rel, oscale, tgt_kind, tgt_row, tgt_ref, tgt_area, tgt_center,
+                                     scratch, offset_rel, oscale, tgt_kind, tgt_row, tgt_abs_row, tgt_ref, tgt_first,
+                                     tgt_count, nee_tri, nee_cdf, tgt_area, tgt_center,
                                      tgt_img_near2, sens_center, sens_normal, sens_radius, sens_corners, geom_offset,
                                      tri_verts, tri_normal, tri_mat, tri_two_sided, mat_prob, mat_phong, cop_start,
                                      cop_list, cop_box, cop_free, tri_plane, mir_point, mir_normal, mir_list,
@@ -793,6 +814,9 @@ def _trace_photons(scene, intersect_fn, scratch, seed, first, count,
             # counted unless the next-event tallies cover this hit
             rec_analog = rec >= 0 and _counted(skip_receivers, receiver_target[rec] if skip_receivers else -1,
                                                vx0, vy0, vz0, tgt_center, tgt_near2)
+            if rec_analog and seg_plane >= 0 and receiver_target[rec] >= 0:      # covered by image events?
+                rec_analog = _image_counted(receiver_target[rec], wx, wy, wz, seg_plane, mir_point, mir_normal,
+                                            tgt_center, tgt_img_near2)
             if rec_analog:
                 nh = _record(n_sens + rec, w, acc, touched, rows, nh)
             if depth >= max_depth:
@@ -823,7 +847,7 @@ def _trace_photons(scene, intersect_fn, scratch, seed, first, count,
                 if n_img > 0:
                     n_out = _image_event(px, py, pz, nx, ny, nz, V_SURFACE, m, w, state, scene, intersect_fn,
                                          occluded_fn, scratch, offset_rel, pscale + oscale, tgt_kind, tgt_row,
-                                         tgt_ref, tgt_area, tgt_center, tgt_img_near2, sens_center, sens_normal,
+                                         tgt_abs_row, tgt_ref, tgt_first, tgt_count, nee_tri, nee_cdf, tgt_area, tgt_center, tgt_img_near2, sens_center, sens_normal,
                                          sens_radius, sens_corners, geom_offset, tri_verts, tri_normal, tri_mat,
                                          tri_two_sided, mat_prob, mat_phong, cop_start, cop_list, cop_box,
                                          cop_free, tri_plane, mir_point, mir_normal, mir_list, mir_cdf,
@@ -976,8 +1000,8 @@ def trace_chunk(scene, intersect_fn, scratch, seed, first, count,
         the unit normal of each plane; mir_list : int32, the planes in use, drawn by the cumulative
         probabilities mir_cdf with weights 1 / p = mir_inv_p; mir_on (P,) uint8, the planes in use as flags;
         mir_box (P, 2, 3) each plane's triangles' bounds (slightly widened); mir_one_sided (P,) uint8.
-        A sensor crossing right after a perfect-mirror reflection on a plane in use, by a photon that
-        came there from a next-event vertex, is then covered by the image events and not counted.
+        A target's crossing (sensor or mesh) right after a perfect-mirror reflection on a plane in use, by a
+        photon that came there from a next-event vertex, is then covered by the image events and not counted.
     control : bool, the control variate (with sensor targets and random picks): every sensor's γ at every
         next-event vertex (:func:`_control_deposits`); cv_batch : int, photons per batch of its products
         between bands (:func:`_control_products`; batches start at multiples of cv_batch, counted in
@@ -1006,7 +1030,7 @@ def trace_chunk(scene, intersect_fn, scratch, seed, first, count,
     dep = np.empty(n_bands)
     n_tgt = tgt_kind.shape[0]
     contrib = np.empty(n_bands)
-    n_slots = 3 * (n_tgt + picks) + 2 + int(max(img_picks, zone_picks))   # near discs + picks (3 deposits
+    n_slots = 3 * (n_tgt + picks) + 2 * (1 + int(max(img_picks, zone_picks)))   # near discs + picks (3 deposits
     out_k = np.empty(n_slots, dtype=np.int64)                             # each), or image / zone events
     out_w = np.empty((n_slots, n_bands))
     control = control and nee_sensors and 0 < picks < n_tgt

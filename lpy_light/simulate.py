@@ -211,7 +211,7 @@ class KernelScene:
         self.nee_control = True     # with picks: γ of every sensor at every vertex, picks carry the rest
         self.nee_batch = 8          # photons per batch of the control variate's products between bands
         self.nee_receiver_mask = None   # (R,) bool: receivers that are next-event targets (None: all)
-        self.nee_images = 0.5       # next events through a perfect mirror per vertex, on average (sensors; 0: none)
+        self.nee_images = 0.5       # next events through a perfect mirror per vertex, on average (0: none)
         self.nee_zones = 0.3        # two-step next events through the surface beside a disc, per vertex (0: none)
         tris = chamber.triangles
         area = 0.5 * np.linalg.norm(np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0]), axis=1)
@@ -441,7 +441,7 @@ class KernelScene:
                     self.occluded, self.nee_sensors, self.nee_receivers, *self.targets, self.tri_verts,
                     self.mat_nee, self.emit_nee, self.nee_picks, self.cop_start, self.cop_list, self.cop_box,
                     self.cop_free, self.tri_two_sided,
-                    float(self.nee_images) if self.nee_sensors else 0.0, self.tri_plane, self.mir_point, self.mir_normal,
+                    float(self.nee_images) if self.nee_sensors or self.nee_receivers else 0.0, self.tri_plane, self.mir_point, self.mir_normal,
                     *self._mirror_draw(), self.mir_on, self.mir_box, self.mir_one_sided, bool(self.nee_control),
                     int(self.nee_batch),
                     float(self.nee_zones) if self.nee_sensors else 0.0, *self.zones, self.tri_pid, *out)
