@@ -5,7 +5,7 @@ process's CPU seconds, steadier on a shared machine: with 2 threads ≈ 2 × wal
 and 90th-percentile relative σ on PAR, the buds' median, and what the geometry cache saved.  The same LightModel path
 as lsystems/rose.lpy runs in L-Py, minus PlantGL's tessellation.
 
-    .venv/bin/python benchmarks/rose.py [--photons 300000] [--steps 5] [--estimator nee] [--targets all]
+    .venv/bin/python benchmarks/rose.py [--photons 300000] [--steps 5] [--estimator nee] [--targets all] [--images 0.2]
 """
 import argparse
 import math
@@ -90,12 +90,16 @@ def main():
     ap.add_argument("--threads", type=int, default=None)
     ap.add_argument("--targets", nargs="+", default=["Leaf", "Bud"],
                     help="modules next events aim at (default: Leaf Bud, as lsystems/rose.lpy; 'all': every organ)")
+    ap.add_argument("--images", type=float, default=None,
+                    help="next events through a mirror per vertex, on average (default: LightModel's, 0.2)")
     args = ap.parse_args()
     t0 = time.perf_counter()
     model = LightModel("angers-12bands", photons=int(args.photons), plant_unit="cm", estimator=args.estimator,
                        threads=args.threads,
                        targets=None if args.targets == ["all"] else args.targets,
                        organs={"Leaf": LEAF_MATERIAL, "Internode": LEAF_MATERIAL[0], "Bud": LEAF_MATERIAL[0]})
+    if args.images is not None:
+        model.mirror_events = args.images
     print("chamber + normalisation: %.2f s (once)" % (time.perf_counter() - t0))
     print("%4s %7s %9s %8s %9s %9s %9s %10s %10s %10s %10s" % ("step", "organs", "triangles", "step s", "CPU s",
                                                                  "convert s", "trace s", "leaf σ med", "leaf σ p90",
