@@ -124,6 +124,8 @@ def test_targets_aim_shadow_rays_at_the_organs_that_matter(tmp_path):
     assert rel(aimed, 2) > 1.5 * rel(every, 2)       # the Stem is no longer a target (same seed: 1.0 if ignored)
     with pytest.raises(InputError, match="Root"):
         LightModel(scene, targets=["Root"], **kw)
+    with pytest.raises(InputError, match="mirror_events"):
+        LightModel(scene, mirror_events=-1, **kw)
 
 
 def test_unchanged_organs_are_not_converted_again(black_room):
