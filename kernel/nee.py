@@ -44,7 +44,7 @@ from numba import njit
 from .embree import ARGS, CAND_COUNT, DIR, GEOM_ID, INVALID_ID, MASK, ORG, RAYHIT, TFAR, TNEAR
 from .ptr import call_ptr3, load_f32, store_f32, store_i64, store_u32
 from .rng import uniform
-from .sampling import frame
+from .sampling import frame, search_cdf
 
 T_DISC, T_QUAD, T_MESH2, T_MESH1 = 0, 1, 2, 3       # target kinds (MESH2: two-sided, MESH1: one-sided)
 DIFFUSE_R, DIFFUSE_T, ABSORB = 0, 2, 4
@@ -105,14 +105,7 @@ def _tri_point(a, u1, u2):
 def mesh_point(t, u1, u2, u3, tgt_first, tgt_count, nee_tri, nee_cdf, tri_verts):
     """A point uniform on mesh target t (by area) from three uniforms: ``(triangle, x, y, z)``; u3 picks the
     triangle from t's cumulative areas ``nee_cdf[tgt_first[t] : tgt_first[t] + tgt_count[t]]``."""
-    lo, hi = tgt_first[t], tgt_first[t] + tgt_count[t] - 1
-    while lo < hi:
-        mid = (lo + hi) // 2
-        if nee_cdf[mid] > u3:
-            hi = mid
-        else:
-            lo = mid + 1
-    g = nee_tri[lo]
+    g = nee_tri[search_cdf(nee_cdf, tgt_first[t], tgt_first[t] + tgt_count[t] - 1, u3)]
     px, py, pz = _tri_point(tri_verts[g], u1, u2)
     return g, px, py, pz
 

@@ -12,6 +12,19 @@ TWO_PI = 2.0 * math.pi
 
 
 @njit(inline="always", cache=True)
+def search_cdf(cdf, lo, hi, u):
+    """The first index i in [lo, hi] with cdf[i] > u (hi if none): the entry a uniform u draws from the
+    cumulative probabilities ``cdf[lo : hi + 1]`` (ending at 1)."""
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if cdf[mid] > u:
+            hi = mid
+        else:
+            lo = mid + 1
+    return lo
+
+
+@njit(inline="always", cache=True)
 def frame(nx, ny, nz):
     """Two unit tangents ``(t, b)`` completing ``n`` to a right-handed frame (Duff et al. 2017)."""
     sign = 1.0 if nz >= 0.0 else -1.0

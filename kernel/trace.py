@@ -49,7 +49,7 @@ from .rng import seed_stream, uniform
 from .nee import (_ZERO32, _gamma32, point_view, view_factors, END_REL, INV_4PI, T_DISC, T_MESH2, V_ISOTROPIC,
                   V_LAMBERT, V_SURFACE, disc_point_by_solid_angle, mesh_point, next_event, sensor_point, set_ray,
                   visible)
-from .sampling import cosine_hemisphere, mirror, phong_lobe, to_world, uniform_sphere
+from .sampling import cosine_hemisphere, mirror, phong_lobe, search_cdf, to_world, uniform_sphere
 
 # scattering events, in the order their probabilities are accumulated
 DIFFUSE_R, SPECULAR_R, DIFFUSE_T, SPECULAR_T, ABSORB = 0, 1, 2, 3, 4
@@ -339,7 +339,7 @@ def _image_event(vx, vy, vz, nx, ny, nz, mode, m, w, state, scene, intersect_fn,
     n_out = 0
     for _ in range(n_draw):
         t = min(int(uniform(state) * n_tgt), n_tgt - 1)
-        k = _binary_search(mir_cdf, uniform(state))     # a plane, by the pilot's weights (or uniformly)
+        k = search_cdf(mir_cdf, 0, mir_cdf.shape[0] - 1, uniform(state))     # a plane, by the pilot's weights (or uniformly)
         pl = mir_list[k]
         u1, u2, u3 = uniform(state), uniform(state), uniform(state)
         kind = tgt_kind[t]
@@ -599,18 +599,6 @@ def _magnitude(v):
 
 
 @njit(inline="always", cache=True)
-def _binary_search(cdf, u):
-    lo, hi = 0, cdf.shape[0] - 1
-    while lo < hi:
-        mid = (lo + hi) // 2
-        if cdf[mid] > u:
-            hi = mid
-        else:
-            lo = mid + 1
-    return lo
-
-
-@njit(inline="always", cache=True)
 def _emit(e, kind, data, state, offset_rel):
     """Sample an origin and a direction on emitter element e.
 
@@ -694,7 +682,7 @@ def _trace_photons(scene, intersect_fn, scratch, seed, first, count,
 
     for i in range(count):
         seed_stream(state, seed, first + i)
-        e = _binary_search(emit_cdf, (i + uniform(state)) / count)
+        e = search_cdf(emit_cdf, 0, emit_cdf.shape[0] - 1, (i + uniform(state)) / count)
         ox, oy, oz, dx, dy, dz, enx, eny, enz, emode, oscale = _emit(e, emit_kind, emit_data, state, offset_rel)
         w[:] = 1.0
         nh = 0
