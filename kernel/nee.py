@@ -41,8 +41,8 @@ import math
 import numpy as np
 from numba import njit
 
-from .embree import ARGS, CAND_COUNT, DIR, GEOM_ID, INVALID_ID, MASK, ORG, RAYHIT, TFAR, TNEAR
-from .ptr import call_ptr3, load_f32, store_f32, store_i64, store_u32
+from .embree import ARGS, CAND_COUNT, DIR, GEOM_ID, INVALID_ID, MASK, ORG, PRIM_ID, RAYHIT, TFAR, TNEAR
+from .ptr import call_ptr3, load_f32, load_u32, store_f32, store_i64, store_u32
 from .rng import uniform
 from .sampling import frame, search_cdf
 
@@ -89,6 +89,21 @@ def visible(occluded_fn, scene, scratch, ox, oy, oz, dx, dy, dz, tfar):
     set_ray(scratch, ox, oy, oz, dx, dy, dz, tfar)
     call_ptr3(occluded_fn, scene, scratch + RAYHIT, scratch + ARGS)
     return load_f32(scratch + RAYHIT + TFAR) >= 0.0
+
+
+@njit(inline="always", cache=True)
+def reaches(intersect_fn, scene, scratch, ox, oy, oz, dx, dy, dz, near, far, receiver, geom_offset, tri_receiver):
+    """Is the first surface met from o along unit d, before ``far``, a triangle of ``receiver``, no nearer than
+    ``near``?  One ``rtcIntersect1`` call (the filters as for photons).  For a point x on a mesh target at
+    distance L, with near and far L ∓ its float32 tolerance: x is seen, and neither the target itself (a
+    bud's front) nor another surface within that tolerance of x (the internode a bud sinks into) is in the
+    way — which a shadow ray stopping that tolerance short of x cannot tell."""
+    set_ray(scratch, ox, oy, oz, dx, dy, dz, far)
+    call_ptr3(intersect_fn, scene, scratch + RAYHIT, scratch + ARGS)
+    gid = load_u32(scratch + RAYHIT + GEOM_ID)
+    if gid == INVALID_ID or load_f32(scratch + RAYHIT + TFAR) < near:
+        return False
+    return tri_receiver[load_u32(scratch + RAYHIT + PRIM_ID) + geom_offset[gid]] == receiver
 
 
 @njit(inline="always", cache=True)
@@ -260,7 +275,7 @@ def next_event(vx, vy, vz, nx, ny, nz, mode, m, stat, w, state, scene, occluded_
                sens_center, sens_normal, sens_radius, sens_corners,
                nee_tri, nee_cdf, tri_verts, tri_normal, tri_mat, mat_prob, contrib, out_k, out_w, counters,
                nee_stats, picks, vscale, vtri, near_start, near_list, near_r2, control, cover_pid, zone_start,
-               zone_i):
+               zone_i, intersect_fn, geom_offset, tri_receiver):
     """Expected deposits of the segment leaving vertex v on every target; returns how many were written.
 
     v (scene units) with unit normal n (for Lambertian emission: the emitter's
@@ -282,6 +297,9 @@ def next_event(vx, vy, vz, nx, ny, nz, mode, m, stat, w, state, scene, occluded_
     ``cover_pid`` ≥ 0: v is a vertex on plane ``cover_pid`` reached straight from a next-event vertex, whose
     zone events (:func:`kernel.trace._zone_event`) already served the near discs that have a zone on this
     plane (``zone_i[zone_start[t] : zone_start[t + 1], 1]``): their own events are skipped here.
+    A point on a mesh target is seen when the first surface met on the way is the target's, at x
+    (:func:`reaches`: ``intersect_fn``, ``geom_offset``, ``tri_receiver`` are the scene's intersection query
+    and triangle numbering); a sensor's, when nothing is in the way (``occluded_fn``).
     """
     n_bands = w.shape[0]
     vmag = max(abs(vx), abs(vy), abs(vz), vscale)
@@ -378,15 +396,19 @@ def next_event(vx, vy, vz, nx, ny, nz, mode, m, stat, w, state, scene, occluded_
                 for k in range(3):
                     pmag = max(pmag, abs(tri_verts[g, i, k]))
         eps = offset_rel * (vmag + pmag)
-        tfar = dist - 2.0 * eps
-        if g >= 0:      # stop short of a mesh target by its plane's float32 error seen from v (END_REL · d)
-            tfar -= END_REL * dist
-        if tfar <= 0.0:
+        tol = 2.0 * eps
+        if g >= 0:      # a mesh target's plane has a float32 error seen from v (END_REL · d)
+            tol += END_REL * dist
+        if dist - tol <= 0.0:
             continue
         counters[4] += 1
         nee_stats[stat, 0] += 1
-        if not visible(occluded_fn, scene, scratch, vx + side * eps * nx, vy + side * eps * ny,
-                       vz + side * eps * nz, dx, dy, dz, tfar):
+        ox, oy, oz = vx + side * eps * nx, vy + side * eps * ny, vz + side * eps * nz
+        if g >= 0:
+            if not reaches(intersect_fn, scene, scratch, ox, oy, oz, dx, dy, dz, dist - tol, dist + tol, tgt_ref[t],
+                           geom_offset, tri_receiver):
+                continue
+        elif not visible(occluded_fn, scene, scratch, ox, oy, oz, dx, dy, dz, dist - tol):
             continue
         nee_stats[stat, 1] += 1
         out_k[n_out] = tgt_row[t]

@@ -47,8 +47,8 @@ from .embree import (ARGS, CAND, CAND_CAP, CAND_COUNT, DIR, GEOM_ID, HIT_U, HIT_
 from .ptr import call_ptr3, load_f32, load_i64, load_u32, store_f32, store_i64, store_u32
 from .rng import seed_stream, uniform
 from .nee import (_ZERO32, _gamma32, point_view, view_factors, END_REL, INV_4PI, T_DISC, T_MESH2, V_ISOTROPIC,
-                  V_LAMBERT, V_SURFACE, disc_point_by_solid_angle, mesh_point, next_event, sensor_point, set_ray,
-                  visible)
+                  V_LAMBERT, V_SURFACE, disc_point_by_solid_angle, mesh_point, next_event, reaches, sensor_point,
+                  set_ray, visible)
 from .sampling import cosine_hemisphere, mirror, phong_lobe, search_cdf, to_world, uniform_sphere
 
 # scattering events, in the order their probabilities are accumulated
@@ -305,7 +305,7 @@ def _hit_on_plane(scene, intersect_fn, rh, args, plane_of, plane, dx, dy, dz, ge
 @njit(cache=True, _nrt=False)
 def _image_event(vx, vy, vz, nx, ny, nz, mode, m, w, state, scene, intersect_fn, occluded_fn, scratch, offset_rel,
                  vscale, tgt_kind, tgt_row, tgt_abs_row, tgt_ref, tgt_first, tgt_count, nee_tri, nee_cdf, tgt_area,
-                 tgt_center, tgt_near2, sens_center, sens_normal,
+                 tgt_center, tgt_near2, tri_receiver, sens_center, sens_normal,
                  sens_radius, sens_corners, geom_offset, tri_verts, tri_normal, tri_mat, tri_two_sided, mat_prob,
                  mat_phong, cop_start, cop_list, cop_box, cop_free, tri_plane, mir_point, mir_normal, mir_list,
                  mir_cdf, mir_inv_p, mir_box, mir_one_sided, n_draw, picks, contrib, out_k, out_w, counters,
@@ -430,14 +430,18 @@ def _image_event(vx, vy, vz, nx, ny, nz, mode, m, w, state, scene, intersect_fn,
         if g >= 0:                                     # a mesh target is a surface: its triangle's round-off
             pmag = max(pmag, _magnitude(tri_verts[g]))
         eps2 = offset_rel * (hmag + vmag)
-        tfar = d2 - offset_rel * (hmag + pmag) * 2.0
-        if g >= 0:                                     # stop short of its float32 plane (as next_event does)
-            tfar -= END_REL * d2
-        if tfar <= 0.0:
+        tol = offset_rel * (hmag + pmag) * 2.0
+        if g >= 0:                                     # its float32 plane's error (as in next_event)
+            tol += END_REL * d2
+        if d2 - tol <= 0.0:
             continue
         counters[4] += 1
-        if not visible(occluded_fn, scene, scratch, hx + eps2 * tnx, hy + eps2 * tny, hz + eps2 * tnz,
-                       fx, fy, fz, tfar):
+        ox, oy, oz = hx + eps2 * tnx, hy + eps2 * tny, hz + eps2 * tnz
+        if g >= 0:
+            if not reaches(intersect_fn, scene, scratch, ox, oy, oz, fx, fy, fz, d2 - tol, d2 + tol, tgt_ref[t],
+                           geom_offset, tri_receiver):
+                continue
+        elif not visible(occluded_fn, scene, scratch, ox, oy, oz, fx, fy, fz, d2 - tol):
             continue
         nee_stats[stat0 + pl, 1] += 1
         out_k[n_out] = tgt_row[t]
@@ -699,7 +703,8 @@ def _trace_photons(scene, intersect_fn, scratch, seed, first, count,
                                offset_rel, tgt_kind, tgt_row, tgt_abs_row, tgt_ref, tgt_first, tgt_count, tgt_area,
                                tgt_center, tgt_near2, sens_center, sens_normal, sens_radius, sens_corners, nee_tri, nee_cdf, tri_verts,
                                tri_normal, tri_mat, mat_prob, contrib, out_k, out_w, counters, nee_stats,
-                               picks, oscale, -1, near_start, near_list, near_r2, control, -1, zone_start, zone_i)
+                               picks, oscale, -1, near_start, near_list, near_r2, control, -1, zone_start, zone_i,
+                               intersect_fn, geom_offset, tri_receiver)
             for a in range(n_out):
                 nh = _record(out_k[a], out_w[a], acc, touched, rows, nh)
             n_img = _n_images(img_picks, state) if img_on and max_depth > 0 else 0
@@ -707,7 +712,7 @@ def _trace_photons(scene, intersect_fn, scratch, seed, first, count,
                 n_out = _image_event(ox, oy, oz, enx, eny, enz, emode, 0, w, state, scene, intersect_fn, occluded_fn,
                                      scratch, offset_rel, oscale, tgt_kind, tgt_row, tgt_abs_row, tgt_ref, tgt_first,
                                      tgt_count, nee_tri, nee_cdf, tgt_area, tgt_center,
-                                     tgt_img_near2, sens_center, sens_normal, sens_radius, sens_corners, geom_offset,
+                                     tgt_img_near2, tri_receiver, sens_center, sens_normal, sens_radius, sens_corners, geom_offset,
                                      tri_verts, tri_normal, tri_mat, tri_two_sided, mat_prob, mat_phong, cop_start,
                                      cop_list, cop_box, cop_free, tri_plane, mir_point, mir_normal, mir_list,
                                      mir_cdf, mir_inv_p, mir_box, mir_one_sided, n_img, img_picks, contrib, out_k,
@@ -827,7 +832,7 @@ def _trace_photons(scene, intersect_fn, scratch, seed, first, count,
                                    tgt_area, tgt_center, tgt_near2, sens_center, sens_normal, sens_radius, sens_corners, nee_tri, nee_cdf,
                                    tri_verts, tri_normal, tri_mat, mat_prob, contrib, out_k, out_w, counters,
                                    nee_stats, picks, pscale + oscale, tri, near_start, near_list, near_r2, control,
-                                   cover, zone_start, zone_i)
+                                   cover, zone_start, zone_i, intersect_fn, geom_offset, tri_receiver)
                 for a in range(n_out):
                     nh = _record(out_k[a], out_w[a], acc, touched, rows, nh)
                 # and through a mirror (if not cut at that mirror); the call itself is not free: only if drawn
@@ -835,7 +840,8 @@ def _trace_photons(scene, intersect_fn, scratch, seed, first, count,
                 if n_img > 0:
                     n_out = _image_event(px, py, pz, nx, ny, nz, V_SURFACE, m, w, state, scene, intersect_fn,
                                          occluded_fn, scratch, offset_rel, pscale + oscale, tgt_kind, tgt_row,
-                                         tgt_abs_row, tgt_ref, tgt_first, tgt_count, nee_tri, nee_cdf, tgt_area, tgt_center, tgt_img_near2, sens_center, sens_normal,
+                                         tgt_abs_row, tgt_ref, tgt_first, tgt_count, nee_tri, nee_cdf, tgt_area,
+                                         tgt_center, tgt_img_near2, tri_receiver, sens_center, sens_normal,
                                          sens_radius, sens_corners, geom_offset, tri_verts, tri_normal, tri_mat,
                                          tri_two_sided, mat_prob, mat_phong, cop_start, cop_list, cop_box,
                                          cop_free, tri_plane, mir_point, mir_normal, mir_list, mir_cdf,

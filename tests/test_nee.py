@@ -136,7 +136,7 @@ def test_shadow_rays_reach_thin_sliver_triangles(tmp_path):
                        ks.occluded, scratch.ctypes.data, chamber.physics.offset, *tg[:9], *ks.sens[1:5], tg[9], tg[10],
                        ks.tri_verts, ks.tri_normal, ks.tri_mat, ks.mat_prob, np.empty(1), np.empty(8, np.int64),
                        np.empty((8, 1)), counters, stats, 1, 1000.0, -1, *tg[12:15], False, -1,
-                       ks.zones[2], ks.zones[1])
+                       ks.zones[2], ks.zones[1], ks.intersect, ks.geom_offset, ks.tri_receiver)
     assert stats[0, 0] == 200 and stats[0, 1] == 200, "shadow rays cast, unblocked: %s" % stats[0, :2]
 
     ks.mat_nee[:] = 1
@@ -448,3 +448,36 @@ def test_image_events_reach_mesh_targets(tmp_path):
         assert np.all(np.abs(z) < 4), z
     ratio = (s_images / images) ** 2 / (s_plain / plain) ** 2
     assert np.all(ratio < 0.2), ratio
+
+
+BUD_ROOM = ("void plastic white\n0\n0\n5 0.7 0.7 0.7 0 0\n\nvoid plastic leafy\n0\n0\n5 0.2 0.3 0.2 0 0\n\n" + BLACK
+            + box("black", (0, 0, 0), (1000, 1000, 1100)).replace("black polygon floor", "white polygon floor")
+            + lamp_rectangle("lamp", (500, 500), 150, 1000))
+
+
+def test_a_point_just_behind_another_surface_is_not_seen(tmp_path):
+    """A ball (a bud) shut in a black box 0.02 mm wider than it, over a white floor: no light can reach it,
+    and next events give exactly 0.  A shadow ray that stops its float32 tolerance (END_REL · d, 0.02-0.1 mm
+    here) short of the point on the ball also stops short of the box's wall and sees the ball through it
+    (it did: the rose's buds, which sink into their internodes, were 3 % too bright, 7σ against counting).
+    A second ball in the open agrees with counting."""
+    import trimesh
+    from lpy_light.organs import organ_from_mesh
+    chamber = load_scene(write_scene(tmp_path, BUD_ROOM))
+    ball = trimesh.creation.icosphere(subdivisions=2, radius=2.0)
+    box_ = trimesh.creation.box(extents=(4.04, 4.04, 4.04))
+    organs = [organ_from_mesh(0, (ball.vertices + (500, 500, 100), ball.faces), ("leafy", "leafy"), "Bud", 1.0, (0, 0, 0)),
+              organ_from_mesh(1, (box_.vertices + (500, 500, 100), box_.faces), ("black", "black"), "Box", 1.0, (0, 0, 0)),
+              organ_from_mesh(2, (ball.vertices + (600, 500, 100), ball.faces), ("leafy", "leafy"), "Bud", 1.0, (0, 0, 0))]
+    out = {}
+    for est, n in (("nee", 300_000), ("weighted", 3_000_000)):
+        ks = simulate.KernelScene(chamber, est)
+        ks.set_organs(organs, {m.name: m for m in chamber.materials}, [True, False, True])
+        ks.nee_sensors = False
+        ks.retarget()
+        r = simulate.run(ks, n, seed=81, threads=2)
+        inc, sinc = r.receivers_incident()
+        out[est] = inc[:, 0] / n, sinc[:, 0] / n
+    (a, sa), (b, sb) = out["nee"], out["weighted"]
+    assert a[0] == 0.0 and b[0] == 0.0, (a[0], b[0])
+    assert a[2] > 0 and abs(a[2] - b[2]) < 4 * np.hypot(sa[2], sb[2]), (a[2], sa[2], b[2], sb[2])
