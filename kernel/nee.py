@@ -9,7 +9,8 @@ segment deposits on it:
     E[crossing] = ∫_target p(ω(x)) · |cos θ_x| / |x − v|² · V(v, x) dA(x)
 
 estimated with one point x sampled uniformly on the target (area A):
-``A · p(ω) · |cos θ_x| / d² · V``, V from one shadow ray.  p is the pdf of the
+``A · p(ω) · |cos θ_x| / d² · V``, V from one ray: a shadow ray for a sensor, for a
+mesh an intersection that must find the mesh itself at x (:func:`reaches`).  p is the pdf of the
 direction the photon leaves v in: 1/(4π) for isotropic line lamps, cos/π for
 Lambertian emitters, and for a surface ``P_dR,b · cos⁺/π + P_dT,b · cos⁻/π``
 (the diffuse events' physical probabilities per band, whatever event the

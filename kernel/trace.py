@@ -318,7 +318,7 @@ def _image_event(vx, vy, vz, nx, ny, nz, mode, m, w, state, scene, intersect_fn,
     its weight ``mir_inv_p[k]`` = 1 / p_k); a point x on t (a disc's by solid angle as seen from v's image, a
     quad's or a mesh's by area), its image x' across P; the ray v → x' must first meet a triangle of P (after
     the coplanar pick, as a photon would), from a side whose material is a perfect mirror, and the leg from
-    there to x must be free (for a mesh, up to just short of x, as :func:`next_event`'s shadow rays).  Deposit
+    there to x must be free (for a mesh: the first surface met is the mesh, at x, :func:`kernel.nee.reaches`).  Deposit
     w · f_v(ω) · P_spec,b · A_t |cos θ_x| / |x' − v|² · n_targets / (p_k · picks)  (a mirror keeps solid angle),
     and on a mesh with an absorbed row that times the absorptance of the side met.  Sensors and one-sided
     meshes are met from their front only, two-sided meshes from either side.
