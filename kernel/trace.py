@@ -684,12 +684,20 @@ def _trace_photons(scene, intersect_fn, scratch, seed, first, count,
     zone_on = zone_picks > 0.0 and nee_sensors and zone_i.shape[0] > 0 and 0 < picks < n_tgt
     stat_planes = n_mat + emit_nee.shape[0]
 
-    for i in range(count):
-        seed_stream(state, seed, first + i)
+    n_pass = mat_cum.shape[2]      # 1: all bands on one path; n_bands (analog): one path per band
+    nh = 0
+    for path in range(count * n_pass):
+        i = path // n_pass           # the photon
+        pb = path - i * n_pass       # its band (n_pass > 1) or 0
+        if pb == 0:
+            seed_stream(state, seed, first + i)
         e = search_cdf(emit_cdf, 0, emit_cdf.shape[0] - 1, (i + uniform(state)) / count)
         ox, oy, oz, dx, dy, dz, enx, eny, enz, emode, oscale = _emit(e, emit_kind, emit_data, state, offset_rel)
-        w[:] = 1.0
-        nh = 0
+        if n_pass == 1:
+            w[:] = 1.0
+        else:
+            w[:] = 0.0
+            w[pb] = 1.0
         depth = 0
         after_diffuse = False   # does the current segment start at a next-event vertex?
         vx0, vy0, vz0 = ox, oy, oz   # that vertex
@@ -863,11 +871,11 @@ def _trace_photons(scene, intersect_fn, scratch, seed, first, count,
             # one event, drawn with probabilities q shared by the bands; weights carry the rest
             u = uniform(state)
             ev = 0
-            while ev < ABSORB and u >= mat_cum[m, ev]:
+            while ev < ABSORB and u >= mat_cum[m, ev, pb]:
                 ev += 1
             if ev == ABSORB and expected_absorption:   # ends here: its absorption is already deposited
                 break
-            q = mat_cum[m, ev] - (mat_cum[m, ev - 1] if ev > 0 else 0.0)
+            q = mat_cum[m, ev, pb] - (mat_cum[m, ev - 1, pb] if ev > 0 else 0.0)
             for b in range(n_bands):
                 w[b] *= mat_prob[m, ev, b] / q
             if ev == ABSORB:
@@ -909,6 +917,8 @@ def _trace_photons(scene, intersect_fn, scratch, seed, first, count,
             dx, dy, dz = dx * inv, dy * inv, dz * inv
             eps = side * offset_rel * (pscale + oscale)
             ox, oy, oz = px + eps * nx, py + eps * ny, pz + eps * nz
+        if pb < n_pass - 1:
+            continue         # the photon's other bands' paths still to come: one flush for all
         if control:          # batches of cv_batch photons by photon index: the same on any number of threads
             _fold_control(nh, rows, touched, acc, cv_acc, sensor_target, n_sens)
             in_batch += 1
@@ -917,6 +927,7 @@ def _trace_photons(scene, intersect_fn, scratch, seed, first, count,
                 counters[C_BATCHES] += 1
                 in_batch = 0
         _flush(nh, rows, touched, acc, tally, tally_sq, fate0, tot)
+        nh = 0
     for t in range(n_cv):
         for b in range(n_bands):
             tally[cv_row[t], b] += cv_tally[b, t]
@@ -956,7 +967,9 @@ def trace_chunk(scene, intersect_fn, scratch, seed, first, count,
     tri_mat : (T, 2) int32, material seen from the front / back side.
     tri_receiver : (T,) int32, receiver index or -1.
     mat_prob : (M, 5, B) float64, probability of each event per band.
-    mat_cum : (M, 5) float64, cumulative event probabilities q shared by the bands.
+    mat_cum : (M, 5, P) float64, cumulative event probabilities q of the event drawn: P = 1, shared by
+        the bands; or P = B (``analog``), one per band, and every photon is traced once per band, its path
+        for band b carrying weight 1 in band b only (:func:`lpy_light.materials.sampling_tables`).
     mat_phong : (M,) float64, Phong exponent of the specular lobe (inf = mirror).
     sens_* : transparent sensors: kind, centre (S, 3), unit normal (S, 3),
         radius (S,), quad corners (S, 4, 3).

@@ -130,15 +130,19 @@ ESTIMATORS = ("weighted", "analog")
 
 def sampling_tables(materials, specular: str = "mirror", estimator: str = "weighted"):
     """Arrays the kernel needs: ``prob`` (M, 5, B) event probabilities per band,
-    ``cum`` (M, 5) cumulative probabilities q of the event drawn (shared by the
-    bands; the last slot, "absorb", takes the rest), ``phong`` (M,) lobe
-    exponents (inf = perfect mirror).
+    ``cum`` (M, 5, P) cumulative probabilities q of the event drawn (the last
+    slot, "absorb", takes the rest), ``phong`` (M,) lobe exponents (inf =
+    perfect mirror).
 
-    ``analog``: q_e is the band mean of P_e,b over all five events (for one band,
-    SEC2's own counting).  ``weighted``: q_e = max_b P_e,b over the four
+    ``weighted``: P = 1, q shared by the bands: q_e = max_b P_e,b over the four
     scattering events (scaled down if they sum above 1), so that the weight
     factor P_e,b / q_e never exceeds 1; absorption is deposited as an expected
-    value by the kernel.
+    value by the kernel.  ``analog``: P = B, q = P_e,b of each band: SEC2's own
+    counting, one band per path; the kernel then traces every photon once per
+    band, each path carrying weight 1 in its band only (a shared q, e.g. the
+    band mean, would let a band whose P_e,b exceeds q grow its weight bounce
+    after bounce: with R = 0.9 / 0.1 / 0.6 the second moment grows by
+    0.81 / 0.53 = 1.5 per bounce, an estimate whose σ cannot be trusted).
     """
     from .kernel.sampling import phong_exponent
 
@@ -146,14 +150,15 @@ def sampling_tables(materials, specular: str = "mirror", estimator: str = "weigh
         raise ValueError("estimator must be one of %s, not %r" % (", ".join(ESTIMATORS), estimator))
     prob = np.stack([m.events for m in materials])
     if estimator == "analog":
-        q = prob.mean(axis=2)
+        q = prob.copy()                              # (M, 5, B): each band its own path
     else:
         q = prob.max(axis=2)
         q[:, ABSORB] = 0.0
         over = q.sum(axis=1, keepdims=True)
-        q = np.where(over > 1.0, q / np.maximum(over, 1e-300), q)
+        q = np.where(over > 1.0, q / np.maximum(over, 1e-300), q)[:, :, None]
     cum = np.cumsum(q, axis=1)
-    cum[:, -1] = 1.0 + 1e-12   # the last event takes the rest, whatever the rounding
+    cum[:, -1, :] = 1.0 + 1e-12   # the last event takes the rest, whatever the rounding
+    cum = np.ascontiguousarray(cum)
     if specular == "phong":
         phong = np.array([phong_exponent(m.roughness) for m in materials])
     else:

@@ -72,3 +72,24 @@ def test_energy_closure_holds_per_band(runs):
     for run in separate:   # analog, one band: every photon deposits exactly 1
         assert run.closure[1][0] < 1e-6 * n
         assert run.fate.sum() == pytest.approx(n, rel=1e-9)
+
+
+def test_analog_traces_each_band_on_its_own_path(runs, tmp_path):
+    """``analog`` with several bands is SEC2's counting band by band: every photon is traced once per band,
+    each path with that band's own event probabilities, so each band's tally is a raw count (a whole number),
+    each path deposits exactly 1 in its band (closure without spread), and the bands agree with separate
+    one-band analog runs at their σ.  A shared event probability (the bands' mean, as before) gives weights
+    P_e,b / q_e ≠ 1: no whole numbers, no exact closure, and a σ that misses the weights' growth."""
+    _, separate = runs
+    n = 150_000
+    together = simulate.run(simulate.KernelScene(_scene(tmp_path, BANDS), estimator="analog"), n, seed=7)
+    p, s = together.sensors()
+    assert np.all(p > 0)
+    np.testing.assert_array_equal(p, np.round(p))
+    assert together.fate.sum(axis=0) == pytest.approx(np.full(3, n), rel=1e-9)
+    assert np.all(together.closure[1] < 1e-6 * n)
+    for b, run in enumerate(separate):
+        q, t = run.sensors()
+        z = (p[:, b] - q[:, 0]) / np.hypot(s[:, b], t[:, 0])
+        assert np.all(np.abs(z) < 4), (b, z)
+        assert np.all(np.abs(s[:, b] / t[:, 0] - 1) < 0.2), (b, s[:, b], t[:, 0])   # the same precision
