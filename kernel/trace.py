@@ -661,7 +661,8 @@ def _trace_photons(scene, intersect_fn, scratch, seed, first, count,
                    near_r2, sensor_target, receiver_target,
                    tri_verts, mat_nee, emit_nee, picks, cop_start, cop_list, cop_box, cop_free, tri_two_sided,
                    img_picks, tri_plane, mir_point, mir_normal, mir_list, mir_cdf, mir_inv_p, mir_on, mir_box,
-                   mir_one_sided, control, cv_batch, zone_picks, zone_f, zone_i, zone_start, tri_pid, tally, tally_sq,
+                   mir_one_sided, control, cv_batch, zone_picks, zone_f, zone_i, zone_start, tri_pid, flush_start,
+                   flush_list, tally, tally_sq,
                    counters, nee_stats,
                    state, w, dep, contrib, out_k, out_w, cv_row, cv_center, cv_normal, cv_area, cv_thr, cv_runs,
                    cv_plane, cv_acc, cv_tally, cv_sq, g_r, g_t, acc, touched, rows, tot, seen):
@@ -745,15 +746,27 @@ def _trace_photons(scene, intersect_fn, scratch, seed, first, count,
             counters[C_RAYS] += 1
             gid = load_u32(rh + GEOM_ID)
             t = math.inf if gid == INVALID_ID else float(load_f32(rh + TFAR))
+            tri = -1 if gid == INVALID_ID else load_u32(rh + PRIM_ID) + geom_offset[gid]
 
-            # transparent sensors crossed before the surface hit (exact test in float64)
+            # transparent sensors crossed before the surface hit (exact test in float64): those Embree
+            # reported, and those lying on the triangle hit, which its float32 rounding may have left out
             nc = load_i64(cand_count)
             if nc > CAND_CAP:
                 counters[C_CAND_OVERFLOW] += 1
                 nc = CAND_CAP
+            n_flush = flush_start[tri + 1] - flush_start[tri] if tri >= 0 else 0
+            if n_flush > 0:      # then the surface's distance in float64, from its own plane
+                dn = dx * tri_normal[tri, 0] + dy * tri_normal[tri, 1] + dz * tri_normal[tri, 2]
+                if dn != 0.0:
+                    t = ((tri_verts[tri, 0, 0] - ox) * tri_normal[tri, 0] + (tri_verts[tri, 0, 1] - oy) * tri_normal[tri, 1]
+                         + (tri_verts[tri, 0, 2] - oz) * tri_normal[tri, 2]) / dn
+                    t += 1e-9 * (abs(t) + max(abs(ox), abs(oy), abs(oz)))     # a sensor on it is met first
             n_seen = 0
-            for c in range(nc):
-                s = load_u32(scratch + CAND + 8 * c) // 2
+            for c in range(nc + n_flush):
+                if c < nc:
+                    s = load_u32(scratch + CAND + 8 * c) // 2
+                else:
+                    s = flush_list[flush_start[tri] + c - nc]
                 dup = False
                 for j in range(n_seen):
                     if seen[j] == s:
@@ -783,7 +796,6 @@ def _trace_photons(scene, intersect_fn, scratch, seed, first, count,
             if gid == INVALID_ID:
                 nh = _record(f_escaped, w, acc, touched, rows, nh)
                 break
-            tri = load_u32(rh + PRIM_ID) + geom_offset[gid]
             # the hit point from Embree's barycentrics on our float64 triangle: on its plane to float64
             # precision.  o + t·d is not: Embree's t carries the float32 error of the triangle's plane seen
             # from the ray's origin (~1e-5 of t on thin sliver triangles, as leaf fans have), which can put
@@ -948,7 +960,8 @@ def trace_chunk(scene, intersect_fn, scratch, seed, first, count,
                 near_r2, sensor_target, receiver_target,
                 tri_verts, mat_nee, emit_nee, picks, cop_start, cop_list, cop_box, cop_free, tri_two_sided,
                 img_picks, tri_plane, mir_point, mir_normal, mir_list, mir_cdf, mir_inv_p, mir_on, mir_box,
-                mir_one_sided, control, cv_batch, zone_picks, zone_f, zone_i, zone_start, tri_pid, tally, tally_sq,
+                mir_one_sided, control, cv_batch, zone_picks, zone_f, zone_i, zone_start, tri_pid, flush_start,
+                flush_list, tally, tally_sq,
                 counters, nee_stats):
     """Trace photons ``first .. first+count-1``; add what they do to the output arrays.
 
@@ -1016,6 +1029,8 @@ def trace_chunk(scene, intersect_fn, scratch, seed, first, count,
     zone_picks : float, two-step next events through the zone beside a disc per next-event vertex, on
         average (0: none; :func:`_zone_event`); zone_f (Z, 14), zone_i (Z, 2), zone_start (targets + 1,)
         the zones (:func:`kernel.nee.near_zones`); tri_pid (T,) int32 each triangle's plane id.
+    flush_start (T + 1,), flush_list : int64, the sensors lying on each triangle's plane
+        (:meth:`lpy_light.sensors.Sensors.flush_with`), tested at every hit on it.
     nee_stats : (M + E + P, 3) float64, shadow rays cast, unblocked, and the weight
         they deposit, per material, per emitter element, then per mirror plane (image events).
     tally (K + M + 4, B), tally_sq (K + M + 4, B, B) : float64, expected hits and
@@ -1079,7 +1094,7 @@ def trace_chunk(scene, intersect_fn, scratch, seed, first, count,
     touched = np.zeros(tally.shape[0], dtype=np.uint8)
     rows = np.empty(tally.shape[0], dtype=np.int64)     # the rows it touched, in order
     tot = np.empty(n_bands)
-    seen = np.empty(CAND_CAP, dtype=np.int64)
+    seen = np.empty(CAND_CAP + (int(np.max(np.diff(flush_start))) if flush_start.shape[0] > 1 else 0), dtype=np.int64)
     _trace_photons(scene, intersect_fn, scratch, seed, first, count,
                    geom_offset, tri_normal, tri_mat, tri_receiver,
                    mat_prob, mat_cum, mat_phong,
@@ -1091,7 +1106,8 @@ def trace_chunk(scene, intersect_fn, scratch, seed, first, count,
                    near_r2, sensor_target, receiver_target,
                    tri_verts, mat_nee, emit_nee, picks, cop_start, cop_list, cop_box, cop_free, tri_two_sided,
                    img_picks, tri_plane, mir_point, mir_normal, mir_list, mir_cdf, mir_inv_p, mir_on, mir_box,
-                   mir_one_sided, control, cv_batch, zone_picks, zone_f, zone_i, zone_start, tri_pid, tally, tally_sq,
+                   mir_one_sided, control, cv_batch, zone_picks, zone_f, zone_i, zone_start, tri_pid, flush_start,
+                   flush_list, tally, tally_sq,
                    counters, nee_stats,
                    state, w, dep, contrib, out_k, out_w, cv_row, cv_center, cv_normal, cv_area, cv_thr, cv_runs,
                    cv_plane, cv_acc, cv_tally, cv_sq, g_r, g_t, acc, touched, rows, tot, seen)

@@ -61,6 +61,37 @@ class Sensors:
                        np.concatenate([p.normal for p in parts]), np.concatenate([p.radius for p in parts]),
                        np.concatenate([p.corners for p in parts]), sum((p.source for p in parts), []))
 
+    def flush_with(self, tri_verts, tri_normal, rel: float = 2.0 ** -16):
+        """Sensors lying in the plane of a triangle, within float32's reach: per triangle, those whose centre is
+        within ``rel`` · (largest coordinate) of its plane and whose bounding box meets the triangle's.
+
+        A sensor resting on a table is crossed at the same distance as the table is hit; Embree, in
+        float32, then reports the sensor as a candidate or not as its rounding falls.  The kernel tests the
+        sensors listed for the triangle it hit as if Embree had reported them, in float64 against the
+        triangle's own plane, so that such a sensor counts what lands on the table under it.
+        ``tri_verts`` (T, 3, 3), unit ``tri_normal`` (T, 3).  Returns ``start`` (T + 1,) int64 and ``sensor``
+        int64: triangle j's sensors are ``sensor[start[j]:start[j + 1]]``."""
+        T = len(tri_verts)
+        pairs_tri, pairs_s = [], []
+        if len(self) and T:
+            lo, hi = tri_verts.min(axis=1), tri_verts.max(axis=1)
+            for s in range(len(self)):
+                c = self.center[s]
+                reach = self.radius[s] if self.kind[s] == DISC else \
+                    float(np.linalg.norm(self.corners[s] - c, axis=1).max())
+                tol = rel * max(float(np.abs(c).max()), float(np.abs(tri_verts).max()), 1e-30)
+                height = np.abs(np.einsum("ij,ij->i", c - tri_verts[:, 0], tri_normal))
+                near = (height <= tol) & np.all(lo <= c + reach + tol, axis=1) & np.all(hi >= c - reach - tol, axis=1)
+                j = np.flatnonzero(near)
+                pairs_tri.append(j)
+                pairs_s.append(np.full(len(j), s))
+        tris = np.concatenate(pairs_tri) if pairs_tri else np.zeros(0, np.int64)
+        sens = np.concatenate(pairs_s) if pairs_s else np.zeros(0, np.int64)
+        order = np.argsort(tris, kind="stable")
+        start = np.zeros(T + 1, np.int64)
+        np.cumsum(np.bincount(tris, minlength=T), out=start[1:])
+        return start, np.ascontiguousarray(sens[order], dtype=np.int64)
+
     def bounding_triangles(self) -> np.ndarray:
         """Two triangles per sensor (sensor s owns rows 2s and 2s+1), (2S, 3, 3)."""
         S = len(self)

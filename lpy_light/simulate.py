@@ -251,6 +251,7 @@ class KernelScene:
         self.scene = embree.EmbreeScene(one_sided=tris[one], two_sided=tris[two],
                                         sensors=sensors.bounding_triangles() if len(sensors) else None)
         self.materials = list(chamber.materials)
+        self._chamber_flush = sensors.flush_with(self._chamber_verts, self._chamber_normal)
         self.sens = (np.ascontiguousarray(sensors.kind, dtype=np.int32), np.ascontiguousarray(sensors.center, float),
                      np.ascontiguousarray(sensors.normal, float), np.ascontiguousarray(sensors.radius, float),
                      np.ascontiguousarray(sensors.corners, float))
@@ -280,6 +281,9 @@ class KernelScene:
         start, partners = self._chamber_cop
         self.cop_start = np.ascontiguousarray(np.concatenate([start, np.full(len(verts), start[-1], np.int64)]))
         self.cop_list = np.ascontiguousarray(partners if len(partners) else np.zeros(1, np.int32))
+        start, flush = self._chamber_flush            # sensors lying on chamber triangles (none on organs)
+        self.flush_start = np.ascontiguousarray(np.concatenate([start, np.full(len(verts), start[-1], np.int64)]))
+        self.flush_list = np.ascontiguousarray(flush if len(flush) else np.zeros(1, np.int64))
         self.tri_two_sided = np.ascontiguousarray(self.two_sided.astype(np.uint8))
         tv = self.tri_verts
         pad = self._cop_pad
@@ -444,7 +448,8 @@ class KernelScene:
                     float(self.nee_images) if self.nee_sensors or self.nee_receivers else 0.0, self.tri_plane, self.mir_point, self.mir_normal,
                     *self._mirror_draw(), self.mir_on, self.mir_box, self.mir_one_sided, bool(self.nee_control),
                     int(self.nee_batch),
-                    float(self.nee_zones) if self.nee_sensors else 0.0, *self.zones, self.tri_pid, *out)
+                    float(self.nee_zones) if self.nee_sensors else 0.0, *self.zones, self.tri_pid,
+                    self.flush_start, self.flush_list, *out)
         return out
 
 

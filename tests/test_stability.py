@@ -510,6 +510,34 @@ def test_coincident_surfaces(tmp_path):
         assert abs(z) < 4 and MIRROR_REF * (1 - R_MIRROR) / s > 10
 
 
+
+@pytest.mark.parametrize("row_id, unit, k", [("D15", "mm", 1.0), ("D16", "m", 1e-3)])
+def test_sensors_lying_on_a_surface(tmp_path, row_id, unit, k):
+    """Discs lying on the black floor (z = 0) and on a black table top (z = 300, x ≥ 500, no sides): each
+    counts what lands on the surface under it, as a disc 0.001 mm above does — the same photons, so the
+    same count, and the quadrature's value — and a disc 0.001 mm under the surface counts nothing.  Embree
+    finds the surface and the disc at the same float32 distance and reports the disc or not as its rounding
+    falls: discs lying on a surface got 27 % (floor, in mm), 49 % (floor, in m) and 97 % (a table at 900 mm)
+    of their light before the kernel tested the sensors lying on the triangle it hit."""
+    tf = _tf(k)
+    table = rad_polygon("black", "table", [tf((500, 0, 300)), tf((1000, 0, 300)), tf((1000, 1000, 300)),
+                                            tf((500, 1000, 300))])
+    spots = ((200, 0.0), (750, 300.0))
+    rows = [tf((x, 500, z0 + dz)) + (40 * k, 0, 0, 1) for x, z0 in spots for dz in (0.0, 1e-3, -1e-3)]
+    chamber = _chamber(tmp_path, _room(tf) + table, rows, extra='unit = "%s"\n' % unit)
+    n = 400_000
+    v, s = _run(chamber, n, seed=23).sensors()
+    v, s = v[:, 0], s[:, 0]
+    refs = [n * rectangle_to_disc_fraction((500, 500), 100, 1000, (0, 0, -1), (x, 500, z0), (0, 0, 1), 40)
+            for x, z0 in spots]
+    z = [(v[3 * i] - refs[i]) / s[3 * i] for i in range(2)]
+    record(row_id, "discs lying on the floor and on a table (%s): quadrature vs ours (table)" % unit, refs[1],
+           v[3], s[3], note="floor: z = %+.2f; 0.001 mm above: the same counts (%g, %g); 0.001 mm under: %g, %g"
+           % (z[0], v[1], v[4], v[2], v[5]))
+    assert v[0] == v[1] and v[3] == v[4], v
+    assert v[2] == 0 and v[5] == 0, v
+    assert all(abs(x) < 4 for x in z), z
+
 GRAZE_N = 4_000_000
 GRAZE_H = 5.0
 ANNULI = [(300.0, 1000.0), (1000.0, 3000.0), (3000.0, 4500.0)]
