@@ -63,7 +63,7 @@ def triangulate_polygon(points) -> np.ndarray:
             cross = (b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0])
             if cross <= 0:
                 continue   # reflex or flat corner
-            if any(_in_triangle(xy[j], a, b, c) for j in idx if j not in (i0, i1, i2)):
+            if any(_blocks(idx, m, xy, a, b, c) for m in range(n) if idx[m] not in (i0, i1, i2)):
                 continue
             tris.append((i0, i1, i2))
             del idx[k]
@@ -75,6 +75,19 @@ def triangulate_polygon(points) -> np.ndarray:
     else:
         tris.append(tuple(idx))
     return p[np.array(tris)]
+
+
+def _blocks(idx, m, xy, a, b, c) -> bool:
+    """Does vertex idx[m] forbid the ear (a, b, c)?  Only a reflex (or flat) vertex inside it or on its
+    edges can; one at the same place as a, b or c cannot: a hole joined to the outline by a seam (Radiance's
+    way of cutting a hole) visits the seam's two ends twice, and those copies touch the ears beside them."""
+    q = xy[idx[m]]
+    if (q[0] == a[0] and q[1] == a[1]) or (q[0] == b[0] and q[1] == b[1]) or (q[0] == c[0] and q[1] == c[1]):
+        return False
+    p, r = xy[idx[m - 1]], xy[idx[(m + 1) % len(idx)]]
+    if (q[0] - p[0]) * (r[1] - p[1]) - (q[1] - p[1]) * (r[0] - p[0]) > 0:
+        return False       # convex: an ear cannot contain it without containing an edge of the outline too
+    return _in_triangle(q, a, b, c)
 
 
 def _in_triangle(q, a, b, c) -> bool:

@@ -68,6 +68,27 @@ def test_concave_polygon_keeps_area_and_winding():
     np.testing.assert_allclose(triangle_normals(tris), [[0, 0, -1]] * len(tris))
 
 
+
+@pytest.mark.parametrize("seam_at", ["left edge", "right edge"])
+def test_polygon_with_a_hole_cut_by_a_seam(seam_at):
+    """Radiance cuts a hole by a seam: the outline runs to the hole, around it the other way, and back along
+    the same edge, so the seam's two ends appear twice.  Area 100 − 4 = 96, every triangle facing the
+    polygon's way, none over the hole.  (Ear clipping that let the seam's copies block every ear fell back
+    to a fan: area 140, triangles facing backwards, and the hole covered.)"""
+    import numpy as np
+    from lpy_light.geometry import triangle_areas, triangle_normals, triangulate_polygon
+    if seam_at == "left edge":
+        pts = [(0, 0, 0), (10, 0, 0), (10, 10, 0), (0, 10, 0), (0, 5, 0), (4, 5, 0), (4, 6, 0), (6, 6, 0),
+               (6, 4, 0), (4, 4, 0), (4, 5, 0), (0, 5, 0)]
+    else:
+        pts = [(0, 0, 0), (10, 0, 0), (10, 5, 0), (6, 5, 0), (6, 4, 0), (4, 4, 0), (4, 6, 0), (6, 6, 0),
+               (6, 5, 0), (10, 5, 0), (10, 10, 0), (0, 10, 0)]
+    tris = triangulate_polygon(pts)
+    assert triangle_areas(tris).sum() == pytest.approx(96)
+    np.testing.assert_allclose(triangle_normals(tris), [[0, 0, 1]] * len(tris))
+    centroids = tris.mean(axis=1)
+    assert not np.any((np.abs(centroids[:, 0] - 5) < 1) & (np.abs(centroids[:, 1] - 5) < 1))
+
 def test_material_readings_sec2_and_radiance():
     """SEC2 reads trans as (R = colour, T = trans); Radiance splits C(1-s)(1-t) / s / C(1-s)t."""
     import numpy as np
