@@ -61,8 +61,15 @@ def _count(text: str) -> int:
     return int(value)
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse with its errors on one line (the usage is what ``--help`` is for), exit status 2."""
+
+    def error(self, message):
+        self.exit(2, "%s: error: %s (see %s --help)\n" % (self.prog, message, self.prog))
+
+
 def _parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="lpy-light", description="Light interception in a modelled growth chamber.")
+    p = _Parser(prog="lpy-light", description="Light interception in a modelled growth chamber.")
     sub = p.add_subparsers(dest="command", required=True)
     r = sub.add_parser("run", help="trace photons through a scene and write sensors.csv and summary.json")
     r.add_argument("scene", help="scene TOML file, or a built-in scene name (see 'lpy-light scenes')")
@@ -365,6 +372,18 @@ def cmd_grow(args) -> int:
     return 130 if partial else 0
 
 
+def _remove_stale_results(out):
+    """After bad input, ``--out`` holds no results: those of an earlier run there would pass for this one's."""
+    from .results import RESULT_FILES
+    if not out or not Path(out).is_dir():
+        return
+    for name in RESULT_FILES:
+        try:
+            (Path(out) / name).unlink(missing_ok=True)
+        except OSError:
+            pass
+
+
 def main(argv=None) -> int:
     logging.basicConfig(format="lpy-light: warning: %(message)s", level=logging.WARNING)
     args = _parser().parse_args(argv)
@@ -380,6 +399,7 @@ def main(argv=None) -> int:
             return cmd_grow(args)
     except LpyLightError as exc:
         print("lpy-light: error: %s" % exc, file=sys.stderr)
+        _remove_stale_results(getattr(args, "out", None))
         return 2
     except KeyboardInterrupt:
         print("lpy-light: interrupted", file=sys.stderr)

@@ -39,11 +39,17 @@ class Spectrum:
     path: str = ""
 
     def band_mean(self, start: float, end: float) -> float:
-        """Mean of the samples with ``start <= wavelength < end``."""
-        sel = (self.wavelength >= start) & (self.wavelength < end)
-        if not sel.any():
-            raise InputError("no samples in band %g-%g nm (table covers %g-%g nm)"
-                             % (start, end, self.wavelength.min(), self.wavelength.max()), self.path)
+        """Mean of the samples with ``start <= wavelength < end``; the table must cover the band, to one sample
+        spacing at either end (a spectrum from 401 nm serves a band from 400 nm), else :class:`InputError` (key
+        ``bands``): a mean over the part it covers would silently stand for the whole band."""
+        wl = self.wavelength
+        sel = (wl >= start) & (wl < end)
+        step = float(np.median(np.diff(np.sort(wl)))) if len(wl) > 1 else 0.0
+        if not sel.any() or wl.min() > start + step + 1e-9 or wl.max() < end - 2 * step - 1e-9:
+            error = InputError("band %g-%g nm is not covered by this table (it covers %g-%g nm)"
+                               % (start, end, wl.min(), wl.max()), self.path)
+            error.key = "bands"
+            raise error
         return float(self.value[sel].mean())
 
 
@@ -132,7 +138,8 @@ def read_optical_folder(folder) -> OpticalLibrary:
                          % ("a file" if folder.exists() else "nothing: not found"), folder)
     tables = {"ReflectancesMean": {}, "TransmittancesMean": {}}
     for kind, found in tables.items():
-        for path in sorted(folder.glob("*/%s/*.csv" % kind)) + sorted(folder.glob("%s/*.csv" % kind)):
+        found_paths = sorted(folder.glob("*/%s/*" % kind)) + sorted(folder.glob("%s/*" % kind))
+        for path in (p for p in found_paths if p.suffix.lower() == ".csv" and p.is_file()):    # .csv or .CSV
             name = path.stem
             if name in found:
                 raise InputError("material %r has two %s tables (also %s)" % (name, kind, found[name].path), path)

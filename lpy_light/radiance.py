@@ -97,6 +97,8 @@ def read_rad(path) -> list:
         data = path.read_bytes()
     except OSError as exc:
         raise InputError("cannot read Radiance file: %s" % exc.strerror, path) from None
+    if data.startswith(b"\xef\xbb\xbf"):      # a UTF-8 byte-order mark is not a token
+        data = data[3:]
     return parse_rad(data.decode("utf-8", errors="surrogateescape"), str(path))
 
 

@@ -58,6 +58,12 @@ def energy_closure(chamber, result) -> dict:
     return out
 
 
+#: the columns of ``sensors.csv`` (then ``ppfd``, ``ppfd_std`` when the lamps are calibrated)
+SENSOR_COLUMNS = ("sensor", "band", "photons", "photons_std", "x", "y", "z", "area_m2")
+#: the files a run or a grow writes in ``--out``: a run that fails on bad input leaves none of them there
+RESULT_FILES = ("sensors.csv", "sensors_derived.csv", "receivers.csv", "summary.json", "organs.csv", "plant.png")
+
+
 def sensor_table(chamber, result, norm=None) -> list:
     """Rows of ``sensors.csv``: one per sensor and band."""
     photons, std = result.sensors()
@@ -136,8 +142,11 @@ def receiver_table(chamber, result) -> list:
     return rows
 
 
-def csv_text(rows) -> str:
+def csv_text(rows, columns=None) -> str:
+    """CSV of ``rows`` (dicts); with no rows, the header of ``columns`` alone (if given)."""
     buf = io.StringIO()
+    if not rows and columns:
+        return ",".join(columns) + "\n"
     if rows:
         writer = csv.DictWriter(buf, fieldnames=list(rows[0].keys()), lineterminator="\n")
         writer.writeheader()
@@ -171,7 +180,7 @@ def write_run(out_dir, chamber, result, norm=None, extra=None) -> dict:
     summary.update(result.extra)
     if extra:
         summary.update(extra)
-    files = {"sensors.csv": csv_text(sensor_table(chamber, result, norm))}
+    files = {"sensors.csv": csv_text(sensor_table(chamber, result, norm), SENSOR_COLUMNS)}
     derived = derived_table(chamber, result, norm)
     if derived:
         files["sensors_derived.csv"] = csv_text(derived)

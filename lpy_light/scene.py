@@ -133,7 +133,7 @@ def load_scene(path, **overrides) -> Chamber:
     """Read a scene TOML file and everything it names; return a :class:`Chamber`."""
     path = Path(path)
     try:
-        text = path.read_text(encoding="utf-8")
+        text = path.read_text(encoding="utf-8-sig")     # a byte-order mark, as some editors write, is dropped
     except OSError as exc:
         raise InputError("cannot read scene file: %s" % exc.strerror, path) from None
     except UnicodeDecodeError:
@@ -230,10 +230,19 @@ def chamber_from_spec(spec: dict, base: Path, name: str = "<scene>", text: str =
     if not 0 < physics.offset < 1e-2:   # NaN fails too
         raise err("physics.offset must be in (0, 0.01)", "offset")
 
+    def read(key, reader, p):
+        """``reader(p)``; its errors about the file as a whole (no line in it) name the scene file's line."""
+        try:
+            return reader(p)
+        except InputError as exc:
+            if exc.line is None:
+                raise err("%s %s: %s" % (key, exc.path or p, exc.reason), key) from None
+            raise
+
     optical_dirs = paths("optical")
-    optical = read_optical_folder(optical_dirs[0]) if optical_dirs else None
+    optical = read("optical", read_optical_folder, optical_dirs[0]) if optical_dirs else None
     spec_files = paths("specularities")
-    specularities = read_specularities(spec_files[0]) if spec_files else None
+    specularities = read("specularities", read_specularities, spec_files[0]) if spec_files else None
     if optical is not None and bands is None:
         raise err("'optical' tables need 'bands' (e.g. bands = [[655, 665]])", "optical")
 
@@ -246,21 +255,23 @@ def chamber_from_spec(spec: dict, base: Path, name: str = "<scene>", text: str =
                   "plant_position")
     prims = []
     for p in paths("geometry"):
-        prims.extend(read_rad(p))
+        prims.extend(read("geometry", read_rad, p))
     solid = []
     for p in paths("solid_sensors"):
-        solid.extend(read_rad(p))
-    sensors = Sensors.concat(read_sensors(p) for p in paths("sensors"))
+        solid.extend(read("solid_sensors", read_rad, p))
+    sensors = Sensors.concat(read("sensors", read_sensors, p) for p in paths("sensors"))
     spectrum = None
     for p in paths("spectrum"):
         from .units import read_lamp_spectrum
-        spectrum = read_lamp_spectrum(p)
+        spectrum = read("spectrum", read_lamp_spectrum, p)
     try:
         chamber = build_chamber(prims, sensors, bands=bands, optical=optical, specularities=specularities,
                                 physics=physics, unit=unit, solid=solid, remove=remove)
     except InputError as exc:
         if exc.path is None:     # a problem of the scene as a whole: name the scene file
             raise err(exc.reason, getattr(exc, "key", None)) from None
+        if exc.line is None:     # a file as a whole (a table that misses a band): on the scene file's line
+            raise err("%s: %s" % (exc.path, exc.reason), getattr(exc, "key", None)) from None
         raise
     chamber.spectrum = spectrum
     chamber.optical = optical
@@ -284,6 +295,19 @@ def chamber_from_spec(spec: dict, base: Path, name: str = "<scene>", text: str =
 
 
 # ------------------------------------------------------------------------------------------
+def _check_arguments(prim):
+    """Radiance's own rule for the types we read: no integer arguments, and no string arguments except a
+    mirror's one (its alternate material, which lpy-light does not use)."""
+    if prim.ints:
+        raise InputError("%s %s takes no integer arguments, got %d" % (prim.type, prim.identifier, len(prim.ints)),
+                         prim.path, prim.line)
+    allowed = 1 if prim.type == "mirror" else 0
+    if len(prim.strings) > allowed:
+        raise InputError("%s %s takes %s string arguments, got %d (%s)"
+                         % (prim.type, prim.identifier, "no" if not allowed else "at most %d" % allowed,
+                            len(prim.strings), " ".join(prim.strings)), prim.path, prim.line)
+
+
 def build_chamber(prims, sensors=None, bands=None, optical=None, specularities=None, physics=None,
                   unit="mm", solid=(), remove=()) -> Chamber:
     """Turn Radiance primitives into a :class:`Chamber`.
@@ -311,6 +335,8 @@ def build_chamber(prims, sensors=None, bands=None, optical=None, specularities=N
             removed.add(prim.identifier)
             continue
         t = prim.type
+        if t in MATERIAL_TYPES or t in SURFACE_TYPES:
+            _check_arguments(prim)
         if t in MATERIAL_TYPES:
             if prim.modifier != "void":
                 raise InputError("material %s %s: modifier %r not supported (materials must be modified by "
@@ -403,9 +429,13 @@ def build_chamber(prims, sensors=None, bands=None, optical=None, specularities=N
         raise error
     emitters = emit.build()
     if len(emitters) == 0:
-        error = InputError("the scene has no light source (no light/glow surface with radiance > 0)",
-                           prims[0].path if prims else None)
-        error.key = "geometry"
+        dark = [p for p in prims if p.type in ("light", "glow") and not any(x > 0 for x in p.reals[:3])]
+        if dark:       # a lamp whose radiance is zero or negative: point at it
+            raise InputError("the scene has no light source: %s %s has radiance %s (must be > 0)"
+                             % (dark[0].type, dark[0].identifier, " ".join("%g" % x for x in dark[0].reals[:3])),
+                             dark[0].path, dark[0].line)
+        error = InputError("the scene has no light source (no light/glow surface with radiance > 0)")
+        error.key = "geometry"        # named on the scene file's geometry line (chamber_from_spec)
         raise error
     total = float(np.sum(emitters.power))
     if not (math.isfinite(total) and total > 0):

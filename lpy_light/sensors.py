@@ -143,24 +143,27 @@ def read_sensors(path) -> Sensors:
     header = [h.strip() for h in first]
     while header and not header[-1]:
         header.pop()
-    if header[:7] == _DISC_COLUMNS:
+    # columns are found by name, in any order, other columns ignored (a label, a height...)
+    if all(c in header for c in _DISC_COLUMNS):
         columns, kind = _DISC_COLUMNS, DISC
-    elif header[:12] == _QUAD_COLUMNS:
+    elif all(c in header for c in _QUAD_COLUMNS):
         columns, kind = _QUAD_COLUMNS, QUAD
     else:
         raise _error("unknown sensor header %r: expected %s (discs) or %s (quads), comma-separated%s"
                      % (",".join(header), ",".join(_DISC_COLUMNS), ",".join(_QUAD_COLUMNS), not_utf8(",".join(header))),
                      path, header_line)
+    index = [header.index(c) for c in columns]
+    needed = max(index) + 1          # cells a row must have: up to the last column we read
     values, source = [], []
     for number, row in numbered[1:]:
         cells = list(row)
         while len(cells) > len(header) and not cells[-1].strip():
             cells.pop()     # trailing separators
-        if len(cells) != len(header):
+        if not needed <= len(cells) <= len(header):
             raise _error("expected %d values (%s), got %d" % (len(header), ",".join(header), len(cells)),
                          path, number)
         try:
-            v = [float(c.replace(",", ".") if delimiter != "," else c) for c in cells[:len(columns)]]
+            v = [float(cells[i].replace(",", ".") if delimiter != "," else cells[i]) for i in index]
         except ValueError:
             raise _error("expected numbers in columns %s, got %r%s" % (",".join(columns), ",".join(row),
                                                                        not_utf8(",".join(row))), path, number) from None
@@ -171,7 +174,7 @@ def read_sensors(path) -> Sensors:
         values.append(v)
         source.append((str(path), number))
     if not values:
-        raise _error("sensor file has no sensors", path)
+        raise _error("sensor file has no sensors (a header and no rows)", path, 1)
     v = np.asarray(values)
     S = len(v)
     if kind == DISC:

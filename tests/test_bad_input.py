@@ -164,8 +164,16 @@ CASES = [
     ("rad-lamp-power-overflow", rad_plus("void light hot 0 0 3 1e300 1e300 1e300\n"
                                          "hot polygon hp 0 0 9 0 0 0 1e11 0 0 1e11 1e11 0\n"), "scene.rad",
      N_RAD + 2, "not a finite positive number"),
-    ("rad-no-light", {"scene.rad": RAD.replace("3 10 10 10", "3 0 0 0")}, "scene.rad", None, "no light source"),
+    ("rad-no-light", {"scene.rad": RAD.replace("3 10 10 10", "3 0 0 0")}, "scene.rad", 6, "no light source"),
     ("rad-empty", {"scene.rad": "# nothing here\n"}, "scene.toml", 1, "no light source"),
+    ("rad-material-with-strings", rad_plus("void plastic p2 1 foo 0 5 .5 .5 .5 0 0\n"), "scene.rad", N_RAD + 1,
+     "takes no string arguments"),
+    ("rad-polygon-with-ints", rad_plus("wall polygon bad 0 2 1 2 9 0 0 0 1 0 0 1 1 0\n"), "scene.rad", N_RAD + 1,
+     "takes no integer arguments"),
+    ("optical-band-partly-covered", {TABLE_PATH: table(["%d;0,5" % w for w in range(600, 660)])}, "wall.csv",
+     None, "band 655-665 nm is not covered"),
+    ("geometry-is-a-folder", {"scene.toml": TOML.replace('"scene.rad"', '"optical"')}, "scene.toml", 1,
+     "cannot read Radiance file"),
     # --- optical tables -------------------------------------------------------------------
     ("optical-comma-separator", {TABLE_PATH: table(["600,0,5"] + ["%d;0,5" % w for w in range(601, 701)])},
      "wall.csv", 2, "2 fields separated by ';'"),
@@ -184,7 +192,7 @@ CASES = [
     ("optical-empty-file", {TABLE_PATH: ""}, "wall.csv", None, "no data rows"),
     ("optical-negative-wavelength", {TABLE_PATH: table(["-600;0,5"])}, "wall.csv", 2, "not a wavelength"),
     ("optical-band-not-covered", {TABLE_PATH: table(["%d;0,5" % w for w in range(400, 500)])}, "wall.csv",
-     None, "no samples in band 655-665"),
+     None, "band 655-665 nm is not covered"),
     ("optical-binary", {TABLE_PATH: b"\x89PNG\r\n\x1a\n\x00\x00"}, "wall.csv", 3, "NUL byte"),
     ("optical-not-utf8", {TABLE_PATH: b'"lambda";"moy"\n600;0,5\xff\n'}, "wall.csv", 2, "byte 0xff is not UTF-8"),
     ("optical-folder-is-a-file", toml_with('optical = "spec.csv"', replace="optical"), "spec.csv", None,
@@ -228,7 +236,7 @@ CASES = [
      "expected 7 values (X,Y,Z,rayon_capteur,Xnorm,Ynorm,Znorm), got 8"),
     ("sensors-not-a-number", {"sensors.csv": D + "300,300,400,six,0,0,1\n"}, "sensors.csv", 2, "expected numbers"),
     ("sensors-empty", {"sensors.csv": ""}, "sensors.csv", 1, "sensor file is empty"),
-    ("sensors-header-only", {"sensors.csv": D}, "sensors.csv", None, "no sensors"),
+    ("sensors-header-only", {"sensors.csv": D}, "sensors.csv", 1, "no sensors"),
     ("sensors-quad-not-planar", {"sensors.csv": QUAD_HEADER + "0,0,0,1,0,0,1,1,0.5,0,1,0\n"}, "sensors.csv", 2,
      "not planar"),
     ("sensors-quad-out-of-order", {"sensors.csv": QUAD_HEADER + "0,0,0,1,1,0,1,0,0,0,1,0\n"}, "sensors.csv", 2,
@@ -325,6 +333,11 @@ def test_corpus_is_large_and_base_is_valid(tmp_path, capsys):
     {"spec.csv": "material;specularity\nwall;0,1\n"},                   # French csv
     {"scene.toml": TOML.replace("bands = [[655, 665]]", "bands = [[600, 700], [655, 665]]")},   # overlapping bands
     {"spectrum.txt": "wavelength;value\n" + "".join("%d;0,5\n" % w for w in range(600, 701, 2))},
+    {"scene.rad": "\ufeff" + RAD, "scene.toml": "\ufeff" + TOML},      # byte-order marks (Windows editors)
+    {"scene.rad": "\ufeff# a comment first\n" + RAD},
+    {"sensors.csv": "label," + SENSORS.replace("\n", "\nx,").rstrip("x,")},        # an extra column first
+    {"sensors.csv": "Y,X,Z,rayon_capteur,Xnorm,Ynorm,Znorm\n300,300,400,60,0,0,1\n"},   # columns by name
+    {TABLE_PATH: None, TABLE_PATH.replace(".csv", ".CSV"): table()},    # upper-case extension
 ])
 def test_variants_that_are_fine(tmp_path, capsys, changes):
     scene = write(tmp_path / "s", changes)
@@ -498,3 +511,32 @@ def test_latin1_text_columns_are_fine(tmp_path, capsys):
         "sensors.csv": (D.rstrip("\n") + ",Orientation\n300,300,400,60,0,0,1,Vers le haut \xe9\n").encode("latin-1"),
         TABLE_PATH: table(header='"longueur";"r\xe9flectance"').encode("latin-1")})
     assert cli.main(["run", str(scene), "--photons", "1000", "--out", str(tmp_path / "out"), "--quiet"]) == 0
+
+
+def test_bad_input_leaves_no_earlier_results(tmp_path, capsys):
+    """A run refused on bad input into a folder holding an earlier run's results removes them: they would
+    pass for this run's."""
+    out = tmp_path / "out"
+    scene = write(tmp_path / "s")
+    assert cli.main(["run", str(scene), "--photons", "1000", "--out", str(out), "--quiet"]) == 0
+    assert (out / "sensors.csv").exists() and (out / "summary.json").exists()
+    bad = write(tmp_path / "b", {"sensors.csv": "X,Y,Z\n"})
+    assert cli.main(["run", str(bad), "--photons", "1000", "--out", str(out), "--quiet"]) == 2
+    assert len(capsys.readouterr().err.splitlines()) == 1
+    assert not (out / "sensors.csv").exists() and not (out / "summary.json").exists()
+
+
+@pytest.mark.parametrize("argv", [["run"], ["run", "x.toml"], ["run", "angers", "--out", "o", "--photons", "0"],
+                                  ["run", "angers", "--out", "o", "--photons", "abc"], ["bogus"]])
+def test_command_line_errors_are_one_line(capsys, argv):
+    with pytest.raises(SystemExit) as exc:
+        cli.main(argv)
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert len(err.splitlines()) == 1 and "error: " in err, err
+
+
+def test_a_scene_without_sensors_writes_the_header(tmp_path, capsys):
+    scene = write(tmp_path / "s", {"scene.toml": TOML.replace('sensors = "sensors.csv"\n', "")})
+    assert cli.main(["run", str(scene), "--photons", "1000", "--out", str(tmp_path / "out"), "--quiet"]) == 0
+    assert (tmp_path / "out" / "sensors.csv").read_text().startswith("sensor,band,photons,photons_std")
