@@ -89,6 +89,11 @@ def build_material(prim, bands, optical=None, specularities=None, reading: str =
     if prim.type == "trans":
         T = from_table(optical.transmittance if optical else {}, r[5])
         tspec = r[6]
+    elif optical is not None and bands is not None and prim.identifier in optical.transmittance:
+        import logging
+        logging.getLogger("lpy_light").warning(
+            "%s: %s %s has a transmittance table (%s), which only a 'trans' material uses: it lets no light "
+            "through", prim.where, prim.type, prim.identifier, optical.transmittance[prim.identifier].path)
     if s > 1 or tspec > 1:
         raise InputError("%s %s: specular fractions must be <= 1" % (prim.type, prim.identifier),
                          prim.path, prim.line)

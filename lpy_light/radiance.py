@@ -141,6 +141,9 @@ def parse_rad(text: str, name: str = "<string>") -> list:
         ident, _ = take("an identifier", start)
         if ptype.startswith("!") or ident.startswith("!"):
             raise InputError("inline commands are not supported", name, line)
+        if ptype == "alias":     # "mod alias new old": no argument counts; not read by lpy-light
+            raise InputError("Radiance 'alias' (%s alias %s ...) is not supported: define the material again"
+                             % (modifier, ident), name, line)
         strings = [take("a string argument", start)[0] for _ in range(count("string arguments", start))]
         ints = []
         for _ in range(count("integer arguments", start)):

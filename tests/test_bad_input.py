@@ -166,6 +166,7 @@ CASES = [
      N_RAD + 2, "not a finite positive number"),
     ("rad-no-light", {"scene.rad": RAD.replace("3 10 10 10", "3 0 0 0")}, "scene.rad", 6, "no light source"),
     ("rad-empty", {"scene.rad": "# nothing here\n"}, "scene.toml", 1, "no light source"),
+    ("rad-alias", rad_plus("void alias wall2 wall\n"), "scene.rad", N_RAD + 1, "'alias'"),
     ("rad-material-with-strings", rad_plus("void plastic p2 1 foo 0 5 .5 .5 .5 0 0\n"), "scene.rad", N_RAD + 1,
      "takes no string arguments"),
     ("rad-polygon-with-ints", rad_plus("wall polygon bad 0 2 1 2 9 0 0 0 1 0 0 1 1 0\n"), "scene.rad", N_RAD + 1,
