@@ -230,14 +230,18 @@ def chamber_from_spec(spec: dict, base: Path, name: str = "<scene>", text: str =
     if not 0 < physics.offset < 1e-2:   # NaN fails too
         raise err("physics.offset must be in (0, 0.01)", "offset")
 
+    def on_scene_line(exc, key):
+        """An error about a file as a whole (no line in it) moved to the scene file's line naming it."""
+        if exc.line is None:
+            where = " ".join(x for x in (key, exc.path) if x)
+            return err("%s: %s" % (where, exc.reason) if exc.path else exc.reason, key)
+        return exc
+
     def read(key, reader, p):
-        """``reader(p)``; its errors about the file as a whole (no line in it) name the scene file's line."""
         try:
             return reader(p)
         except InputError as exc:
-            if exc.line is None:
-                raise err("%s %s: %s" % (key, exc.path or p, exc.reason), key) from None
-            raise
+            raise on_scene_line(exc, key) from None
 
     optical_dirs = paths("optical")
     optical = read("optical", read_optical_folder, optical_dirs[0]) if optical_dirs else None
@@ -267,12 +271,8 @@ def chamber_from_spec(spec: dict, base: Path, name: str = "<scene>", text: str =
     try:
         chamber = build_chamber(prims, sensors, bands=bands, optical=optical, specularities=specularities,
                                 physics=physics, unit=unit, solid=solid, remove=remove)
-    except InputError as exc:
-        if exc.path is None:     # a problem of the scene as a whole: name the scene file
-            raise err(exc.reason, getattr(exc, "key", None)) from None
-        if exc.line is None:     # a file as a whole (a table that misses a band): on the scene file's line
-            raise err("%s: %s" % (exc.path, exc.reason), getattr(exc, "key", None)) from None
-        raise
+    except InputError as exc:    # the scene as a whole (no light), or a table that misses a band
+        raise on_scene_line(exc, getattr(exc, "key", None)) from None
     chamber.spectrum = spectrum
     chamber.optical = optical
     if pos is not None:
