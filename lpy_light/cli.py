@@ -23,6 +23,7 @@ from pathlib import Path
 from .errors import InputError, LpyLightError
 
 DATA = Path(__file__).parent / "data"
+MAX_NEE_PICKS = 4096      # shadow rays per vertex; 0 (every target) is the way to ask for more
 
 
 def builtin_scenes() -> dict:
@@ -41,6 +42,8 @@ def resolve_scene(name: str) -> Path:
 
 def check_out_dir(out):
     """Refuse an output folder that cannot be written before any photon is traced."""
+    if not str(out).strip():
+        raise InputError("--out must name a folder (got an empty string)")
     out = Path(out)
     if out.exists() and not out.is_dir():
         raise InputError("--out must be a folder; this is a file", out)
@@ -49,6 +52,18 @@ def check_out_dir(out):
         parent = parent.parent
     if not parent.is_dir() or not os.access(parent, os.W_OK | os.X_OK):
         raise InputError("--out: cannot write in %s" % parent, out)
+
+
+def check_outputs(out, inputs):
+    """Refuse a run whose results would overwrite one of its own input files (``--out`` = the scene's folder
+    with a sensor list named ``sensors.csv``, say)."""
+    from .results import RESULT_FILES
+    read = {Path(p).resolve() for p in inputs}
+    for name in RESULT_FILES:
+        target = (Path(out) / name).resolve()
+        if target in read:
+            raise InputError("--out would overwrite the input file %s with this run's %s: choose another folder"
+                             % (target, name), out)
 
 
 def _count(text: str) -> int:
@@ -131,9 +146,10 @@ def cmd_run(args) -> int:
     path = resolve_scene(args.scene)
     chamber = load_scene(path)
     measured, ref, ref_band = _before_run(args, chamber)
+    check_outputs(args.out, chamber.inputs + [Path(f) for f in (args.calibrate, args.reference) if f])
     kscene = simulate.KernelScene(chamber, estimator=args.estimator)
-    if args.nee_picks < 0:
-        raise InputError("--nee-picks must be >= 0")
+    if not 0 <= args.nee_picks <= MAX_NEE_PICKS:
+        raise InputError("--nee-picks must be in 0..%d (0: every target at every vertex)" % MAX_NEE_PICKS)
     kscene.nee_picks = args.nee_picks
     if not 0 <= args.nee_images <= 64:
         raise InputError("--nee-images must be in 0..64")
@@ -224,6 +240,8 @@ def _before_run(args, chamber):
     if chamber.calibration is not None:
         measured = units.read_measured(chamber.calibration[0], chamber, chamber.calibration[1])
     ref = band = None
+    if args.reference_band is not None and args.reference is None:
+        raise InputError("--reference-band needs --reference FILE")
     if args.reference is not None:
         labels = chamber.band_labels
         band = args.reference_band or ("655-665" if "655-665" in labels else labels[0])
@@ -316,7 +334,7 @@ def _grow_parser(sub):
 def cmd_grow(args) -> int:
     from . import light as lightmod
     from .lpy import require_lpy
-    from .results import atomic_write, csv_text
+    from .results import atomic_write, csv_text, json_text
 
     path = Path(args.model)
     if not path.is_file():
@@ -361,7 +379,7 @@ def cmd_grow(args) -> int:
     atomic_write(out / "organs.csv", csv_text(rows))
     summary = {"model": str(path), "steps": steps, "partial": partial, "photons_per_step": model.photons,
                "bands": model.chamber.band_labels, "plant_unit_m": model.scale * model.chamber.metres_per_unit}
-    atomic_write(out / "summary.json", json.dumps(summary, indent=2, default=float) + "\n")
+    atomic_write(out / "summary.json", json_text(summary))
     if model.last_step is not None:
         try:
             from .plant_view import plant_picture
@@ -372,21 +390,54 @@ def cmd_grow(args) -> int:
     return 130 if partial else 0
 
 
+def _is_our_result(path, ours_summary: bool) -> bool:
+    """Whether ``path`` (one of ``RESULT_FILES``) was written by lpy-light: an input that happens to carry the
+    same name (a sensor list called ``sensors.csv`` in ``--out``) is never removed."""
+    try:
+        if path.suffix == ".csv":
+            with open(path, "rb") as f:
+                return f.read(16).startswith((b"sensor,", b"receiver,", b"step,"))
+        if path.name == "summary.json":
+            summary = json.loads(path.read_text(encoding="utf-8"))
+            return isinstance(summary, dict) and ("energy_closure" in summary or "photons_per_step" in summary)
+    except (OSError, ValueError):
+        return False
+    return ours_summary            # plant.png: along with our summary
+
+
 def _remove_stale_results(out):
     """After bad input, ``--out`` holds no results: those of an earlier run there would pass for this one's."""
     from .results import RESULT_FILES
     if not out or not Path(out).is_dir():
         return
+    ours_summary = _is_our_result(Path(out) / "summary.json", False)
     for name in RESULT_FILES:
-        try:
-            (Path(out) / name).unlink(missing_ok=True)
-        except OSError:
-            pass
+        path = Path(out) / name
+        if path.is_file() and _is_our_result(path, ours_summary):
+            try:
+                path.unlink()
+            except OSError:
+                pass
+
+
+def _out_in_argv(argv) -> str | None:
+    """The ``--out`` folder of a command line argparse refused (``--out DIR``, ``--out=DIR``, ``--ou DIR``)."""
+    for i, a in enumerate(argv):
+        name, eq, value = a.partition("=")
+        if len(name) >= 3 and "--out".startswith(name):
+            return value if eq else (argv[i + 1] if i + 1 < len(argv) else None)
+    return None
 
 
 def main(argv=None) -> int:
     logging.basicConfig(format="lpy-light: warning: %(message)s", level=logging.WARNING)
-    args = _parser().parse_args(argv)
+    argv = list(sys.argv[1:] if argv is None else argv)
+    try:
+        args = _parser().parse_args(argv)
+    except SystemExit as exc:
+        if exc.code == 2 and argv[:1] == ["run"]:     # refused by argparse: --out holds no results either
+            _remove_stale_results(_out_in_argv(argv[1:]))
+        raise
     saved = {sig: signal.getsignal(sig) for sig in (signal.SIGTERM, signal.SIGINT)}
     try:
         if args.command == "scenes":

@@ -51,52 +51,66 @@ def triangulate_polygon(points) -> np.ndarray:
     xy = p[:, [u, v]]
     if normal[axis] < 0:
         xy = xy[:, ::-1]
-    idx = list(range(len(p)))
+    return p[np.array(_ear_clip(xy))]
+
+
+def _corner_turns(xy: np.ndarray) -> np.ndarray:
+    """(n,) cross product (b − a) × (c − a) at each corner b of the closed 2-D outline ``xy`` (n, 2), a and c
+    its neighbours: > 0 convex (counter-clockwise), <= 0 reflex or flat."""
+    a, c = np.roll(xy, 1, axis=0), np.roll(xy, -1, axis=0)
+    return (xy[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (xy[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0])
+
+
+def _ear_clip(xy: np.ndarray) -> list:
+    """Triangles (index triples) of the counter-clockwise outline ``xy`` (n, 2), by ear clipping.
+
+    Each round clips the first corner that is convex and holds no reflex vertex (:func:`_blocks`); a convex
+    outline gives the same fan at once (O(n), for the many-sided polygons of a tessellated disc)."""
+    n = len(xy)
+    turns = _corner_turns(xy)
+    if np.all(turns > 0):
+        a, c = np.roll(xy, 1, axis=0), np.roll(xy, -1, axis=0)
+        winding = np.arctan2(turns, ((xy - a) * (c - xy)).sum(axis=1)).sum()
+        if abs(winding - 2 * np.pi) < 1e-6:     # convex and simple (a pentagram turns twice): clip 0, 1, ...
+            return [(n - 1, k, k + 1) for k in range(n - 3)] + [(n - 3, n - 2, n - 1)]
+    idx = np.arange(n)
     tris = []
-    guard = 0
-    while len(idx) > 3 and guard < 10 * len(p) ** 2:
-        guard += 1
-        n = len(idx)
-        for k in range(n):
-            i0, i1, i2 = idx[k - 1], idx[k], idx[(k + 1) % n]
-            a, b, c = xy[i0], xy[i1], xy[i2]
-            cross = (b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0])
-            if cross <= 0:
-                continue   # reflex or flat corner
-            if any(_blocks(idx, m, xy, a, b, c) for m in range(n) if idx[m] not in (i0, i1, i2)):
+    while len(idx) > 3:
+        pts = xy[idx]
+        turns = _corner_turns(pts)
+        reflex = np.flatnonzero(turns <= 0)
+        m = len(idx)
+        for k in np.flatnonzero(turns > 0):
+            a, b, c = pts[k - 1], pts[k], pts[(k + 1) % m]
+            near = reflex[(reflex != (k - 1) % m) & (reflex != k) & (reflex != (k + 1) % m)]
+            if len(near) and _blocks(pts[near], a, b, c).any():
                 continue
-            tris.append((i0, i1, i2))
-            del idx[k]
+            tris.append((int(idx[k - 1]), int(idx[k]), int(idx[(k + 1) % m])))
+            idx = np.delete(idx, k)
             break
         else:
             break   # no ear found (self-intersecting): fall back to a fan of what is left
     if len(idx) > 3:
-        tris.extend((idx[0], idx[k], idx[k + 1]) for k in range(1, len(idx) - 1))
+        tris.extend((int(idx[0]), int(idx[k]), int(idx[k + 1])) for k in range(1, len(idx) - 1))
     else:
-        tris.append(tuple(idx))
-    return p[np.array(tris)]
+        tris.append(tuple(int(i) for i in idx))
+    return tris
 
 
-def _blocks(idx, m, xy, a, b, c) -> bool:
-    """Does vertex idx[m] forbid the ear (a, b, c)?  Only a reflex (or flat) vertex inside it or on its
-    edges can; one at the same place as a, b or c cannot: a hole joined to the outline by a seam (Radiance's
-    way of cutting a hole) visits the seam's two ends twice, and those copies touch the ears beside them."""
-    q = xy[idx[m]]
-    if (q[0] == a[0] and q[1] == a[1]) or (q[0] == b[0] and q[1] == b[1]) or (q[0] == c[0] and q[1] == c[1]):
-        return False
-    p, r = xy[idx[m - 1]], xy[idx[(m + 1) % len(idx)]]
-    if (q[0] - p[0]) * (r[1] - p[1]) - (q[1] - p[1]) * (r[0] - p[0]) > 0:
-        return False       # convex: an ear cannot contain it without containing an edge of the outline too
-    return _in_triangle(q, a, b, c)
-
-
-def _in_triangle(q, a, b, c) -> bool:
-    d1 = (q[0] - b[0]) * (a[1] - b[1]) - (a[0] - b[0]) * (q[1] - b[1])
-    d2 = (q[0] - c[0]) * (b[1] - c[1]) - (b[0] - c[0]) * (q[1] - c[1])
-    d3 = (q[0] - a[0]) * (c[1] - a[1]) - (c[0] - a[0]) * (q[1] - a[1])
-    neg = (d1 < 0) or (d2 < 0) or (d3 < 0)
-    pos = (d1 > 0) or (d2 > 0) or (d3 > 0)
-    return not (neg and pos)
+def _blocks(q: np.ndarray, a, b, c) -> np.ndarray:
+    """Which reflex (or flat) vertices ``q`` (k, 2) forbid the ear (a, b, c): those inside it or on its
+    edges (a convex vertex cannot be inside an ear without an edge of the outline being inside too).  One at
+    the same place as a, b or c does not: a hole joined to the outline by a seam (Radiance's way of cutting a
+    hole) visits the seam's two ends twice, and those copies touch the ears beside them."""
+    same = np.zeros(len(q), bool)
+    for corner in (a, b, c):
+        same |= (q[:, 0] == corner[0]) & (q[:, 1] == corner[1])
+    d1 = (q[:, 0] - b[0]) * (a[1] - b[1]) - (a[0] - b[0]) * (q[:, 1] - b[1])
+    d2 = (q[:, 0] - c[0]) * (b[1] - c[1]) - (b[0] - c[0]) * (q[:, 1] - c[1])
+    d3 = (q[:, 0] - a[0]) * (c[1] - a[1]) - (c[0] - a[0]) * (q[:, 1] - a[1])
+    neg = (d1 < 0) | (d2 < 0) | (d3 < 0)
+    pos = (d1 > 0) | (d2 > 0) | (d3 > 0)
+    return ~(neg & pos) & ~same
 
 
 def _ring_points(center, axis, radius, n):

@@ -69,6 +69,9 @@ def build_material(prim, bands, optical=None, specularities=None, reading: str =
     r = prim.reals
     events = np.zeros((5, n_bands))
     if prim.type in EMITTING:
+        if not all(x >= 0 for x in r[:3]):
+            raise InputError("%s %s: radiance %s: a lamp cannot emit negative light (each of r g b must be >= 0)"
+                             % (prim.type, prim.identifier, " ".join("%g" % x for x in r[:3])), prim.path, prim.line)
         events[ABSORB] = 1.0
         return Material(prim.identifier, prim.type, events, radiance=float(np.mean(r[:3])), where=prim.where)
     if any(x < 0 for x in r):

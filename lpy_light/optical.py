@@ -19,6 +19,7 @@ specular R·s.
 from __future__ import annotations
 
 import csv
+import logging
 import re
 import zipfile
 from dataclasses import dataclass
@@ -28,6 +29,8 @@ from xml.etree import ElementTree
 import numpy as np
 
 from .errors import InputError
+
+log = logging.getLogger("lpy_light")
 
 
 @dataclass
@@ -139,7 +142,11 @@ def read_optical_folder(folder) -> OpticalLibrary:
     tables = {"ReflectancesMean": {}, "TransmittancesMean": {}}
     for kind, found in tables.items():
         found_paths = sorted(folder.glob("*/%s/*" % kind)) + sorted(folder.glob("%s/*" % kind))
-        for path in (p for p in found_paths if p.suffix.lower() == ".csv" and p.is_file()):    # .csv or .CSV
+        for path in found_paths:
+            if path.suffix.lower() != ".csv" or not path.is_file():       # .csv or .CSV tables only
+                if not path.name.startswith("."):
+                    log.warning("%s: not read (optical tables are .csv files)", path)
+                continue
             name = path.stem
             if name in found:
                 raise InputError("material %r has two %s tables (also %s)" % (name, kind, found[name].path), path)

@@ -13,6 +13,7 @@ and summarised by the share of sensors with |z| < 4, the mean relative bias
 from __future__ import annotations
 
 import csv
+import math
 import re
 from dataclasses import dataclass
 from pathlib import Path
@@ -66,9 +67,10 @@ def read_sec2(path) -> Reference:
         raise InputError("cannot read reference: %s" % exc.strerror, path) from None
     n_photons = SEC2_DEFAULT_PHOTONS
     counts, centers = [], []
-    for number, line in enumerate(text.splitlines(), start=1):
+    for number, line in enumerate(text.split("\n"), start=1):      # lines as an editor counts them
         if line.startswith("# actualNbPhotons"):
-            n_photons = float(line.split()[-1])
+            n_photons = _positive(line.split()[-1] if len(line.split()) > 2 else "", "'# actualNbPhotons N'",
+                                  path, number)
         elif "centre" in line:
             m = _CENTER.search(line)
             try:
@@ -76,15 +78,33 @@ def read_sec2(path) -> Reference:
             except (AttributeError, ValueError):
                 raise InputError("expected 'disque de centre (x,y,z)'", path, number) from None
         elif line.startswith("nb particules"):
-            try:
-                counts.append(float(line.split("=")[1]))
-            except (IndexError, ValueError):
-                raise InputError("expected 'nb particules = N'", path, number) from None
+            count = _number(line.split("=")[1] if "=" in line else "", "'nb particules = N'", path, number)
+            if count < 0:
+                raise InputError("expected 'nb particules = N' with N >= 0, got %g" % count, path, number)
+            counts.append(count)
     if not counts:
         raise InputError("no 'nb particules = N' lines: not a SEC2 result file", path)
     counts = np.array(counts)
     return Reference(counts, np.sqrt(counts), n_photons, str(path),
                      np.array(centers) if len(centers) == len(counts) else None)
+
+
+def _number(text, what, path, line=None) -> float:
+    """A finite number, or an InputError naming ``what`` was expected."""
+    try:
+        value = float(str(text).strip())
+    except ValueError:
+        value = math.nan
+    if not math.isfinite(value):
+        raise InputError("expected %s (a finite number), got %r" % (what, str(text).strip()), path, line)
+    return value
+
+
+def _positive(text, what, path, line=None) -> float:
+    value = _number(text, what, path, line)
+    if not value > 0:
+        raise InputError("expected %s with N > 0, got %g" % (what, value), path, line)
+    return value
 
 
 def read_photon_mapping(path, n_photons: float = 1e9) -> Reference:
@@ -93,11 +113,10 @@ def read_photon_mapping(path, n_photons: float = 1e9) -> Reference:
     m = re.search(r"captor_result-(\d+)-", path.name)
     if m:
         n_photons = float(m.group(1))
-    rows = _read_csv(path)
-    try:
-        counts = np.array([float(r["n_photons"]) for r in rows])
-    except (KeyError, ValueError):
-        raise InputError("expected columns id,n_photons", path) from None
+    rows = _read_csv(path, ("n_photons",))
+    counts = np.array([_number(r["n_photons"], "n_photons", path, i) for i, r in enumerate(rows, start=2)])
+    if (counts < 0).any():
+        raise InputError("expected n_photons >= 0", path, 2 + int(np.argmax(counts < 0)))
     return Reference(counts, np.sqrt(counts), n_photons, str(path))
 
 
@@ -106,20 +125,23 @@ def read_run(path, band: str | None = None) -> Reference:
     import json
 
     path = Path(path)
-    rows = _read_csv(path)
-    bands = [r["band"] for r in rows]
-    band = band or bands[0]
-    rows = [r for r in rows if r["band"] == band]
+    rows = [(i, r) for i, r in enumerate(_read_csv(path, ("band", "photons", "photons_std")), start=2)]
+    if not rows:
+        raise InputError("no sensor rows: not a run's sensors.csv", path)
+    band = band or rows[0][1]["band"]
+    rows = [(i, r) for i, r in rows if r["band"] == band]
     if not rows:
         raise InputError("no rows for band %r" % band, path)
     summary = path.with_name("summary.json")
     try:
-        n_photons = float(json.loads(summary.read_text())["photons"])
-    except (OSError, ValueError, KeyError):
+        n_photons = json.loads(summary.read_text(encoding="utf-8"))["photons"]
+    except (OSError, ValueError, KeyError, TypeError):
         raise InputError("a run's sensors.csv needs its summary.json beside it (for the photon count)", summary) from None
-    counts = np.array([float(r["photons"]) for r in rows])
-    std = np.array([float(r["photons_std"]) for r in rows])
-    centers = np.array([[float(r[k]) for k in "xyz"] for r in rows]) if "x" in rows[0] else None
+    n_photons = _positive(n_photons, "'photons': N", summary)
+    counts = np.array([_number(r["photons"], "photons", path, i) for i, r in rows])
+    std = np.array([_number(r["photons_std"], "photons_std", path, i) for i, r in rows])
+    centers = (np.array([[_number(r[k], k, path, i) for k in "xyz"] for i, r in rows])
+               if all(k in rows[0][1] for k in "xyz") else None)
     return Reference(counts, std, n_photons, str(path), centers)
 
 
@@ -133,12 +155,22 @@ def read(path) -> Reference:
     return read_run(path)
 
 
-def _read_csv(path: Path) -> list:
+def _read_csv(path: Path, columns=()) -> list:
+    """Rows of a csv (dicts by header); the header must hold ``columns``."""
     try:
-        with open(path, newline="", encoding="utf-8") as fh:
-            return list(csv.DictReader(fh))
+        with open(path, newline="", encoding="utf-8-sig") as fh:
+            reader = csv.DictReader(fh)
+            missing = [c for c in columns if c not in (reader.fieldnames or [])]
+            if missing:
+                raise InputError("expected the column%s %s in the header" % ("s" * (len(missing) > 1),
+                                                                               ",".join(missing)), path, 1)
+            return list(reader)
     except OSError as exc:
         raise InputError("cannot read reference: %s" % exc.strerror, path) from None
+    except UnicodeDecodeError as exc:
+        raise InputError("not UTF-8 text (byte 0x%02x)" % exc.object[exc.start], path) from None
+    except csv.Error as exc:
+        raise InputError("not a readable csv file (%s)" % exc, path) from None
 
 
 def compare(photons, photons_std, n_photons: float, ref: Reference) -> Comparison:

@@ -8,6 +8,7 @@ from __future__ import annotations
 import csv
 import io
 import json
+import math
 import os
 import tempfile
 from pathlib import Path
@@ -142,8 +143,37 @@ def receiver_table(chamber, result) -> list:
     return rows
 
 
+def _finite(value):
+    """``value`` with every NaN or infinite number made None (JSON null), recursively: a number that is not
+    defined (a ratio over zero light, R² of one point) is written as absent, never as a non-JSON token."""
+    if isinstance(value, dict):
+        return {k: _finite(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_finite(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return _finite(value.tolist())
+    if isinstance(value, (float, np.floating)):
+        return float(value) if math.isfinite(value) else None
+    if isinstance(value, np.integer):
+        return int(value)
+    return value
+
+
+def json_text(obj) -> str:
+    """Strict JSON of a summary (NaN and infinities as null), indented, with a final newline."""
+    return json.dumps(_finite(obj), indent=2, allow_nan=False, default=float) + "\n"
+
+
+def _cell(v):
+    """A csv cell: floats in full precision (repr), an undefined one (NaN, inf) empty."""
+    if isinstance(v, (float, np.floating)):
+        return repr(float(v)) if math.isfinite(v) else ""
+    return v
+
+
 def csv_text(rows, columns=None) -> str:
-    """CSV of ``rows`` (dicts); with no rows, the header of ``columns`` alone (if given)."""
+    """CSV of ``rows`` (dicts); with no rows, the header of ``columns`` alone (if given).  A value that is not
+    defined (NaN or infinite: ppfd where no photon reached any reference sensor) is an empty cell."""
     buf = io.StringIO()
     if not rows and columns:
         return ",".join(columns) + "\n"
@@ -151,7 +181,7 @@ def csv_text(rows, columns=None) -> str:
         writer = csv.DictWriter(buf, fieldnames=list(rows[0].keys()), lineterminator="\n")
         writer.writeheader()
         for row in rows:
-            writer.writerow({k: (repr(float(v)) if isinstance(v, (float, np.floating)) else v) for k, v in row.items()})
+            writer.writerow({k: _cell(v) for k, v in row.items()})
     return buf.getvalue()
 
 
@@ -189,5 +219,5 @@ def write_run(out_dir, chamber, result, norm=None, extra=None) -> dict:
         files["receivers.csv"] = csv_text(receiver_table(chamber, result))
     for name, text in files.items():
         atomic_write(out / name, text)
-    atomic_write(out / "summary.json", json.dumps(summary, indent=2, default=float) + "\n")
+    atomic_write(out / "summary.json", json_text(summary))
     return summary

@@ -93,6 +93,7 @@ class Chamber:
     optical: object = None      # optical.OpticalLibrary, for organ materials, or None
     plant_position: list | None = None   # where a plant's origin goes, scene units
     calibration: tuple | None = None     # (measured csv Path, tolerance or None): units.read_measured
+    inputs: list = field(default_factory=list)   # the files the scene was read from (Paths)
     source: str = ""
 
     @property
@@ -111,13 +112,49 @@ class Chamber:
 
 
 # ------------------------------------------------------------------------------------------
-def _line_of(text: str, key: str) -> int | None:
-    """Line of ``key = ...`` (or of the table ``[key]``) in a TOML text, or None."""
-    pattern = re.compile(r"\s*(%s|\"%s\"|'%s')\s*=|\s*\[\s*%s\s*\]" % ((re.escape(key),) * 4))
+_TOML_KEY = r"""(?:[A-Za-z0-9_-]+|"(?:[^"\\]|\\.)*"|'[^']*')(?:\s*\.\s*(?:[A-Za-z0-9_-]+|"(?:[^"\\]|\\.)*"|'[^']*'))*"""
+_TOML_ASSIGN = re.compile(r"\s*(%s)\s*=" % _TOML_KEY)
+_TOML_TABLE = re.compile(r"\s*\[\[?\s*(%s)\s*\]" % _TOML_KEY)
+
+
+def _key_path(key: str) -> tuple:
+    """A TOML key as written (``physics.lamps``, ``"g\\u00e9ometry"``) -> its parts, as TOML reads them."""
+    try:
+        parsed = tomllib.loads(key + " = 0")
+    except tomllib.TOMLDecodeError:
+        return ()
+    parts = []
+    while isinstance(parsed, dict) and len(parsed) == 1:
+        (k, parsed), = parsed.items()
+        parts.append(k)
+    return tuple(parts)
+
+
+def _line_of(text: str, key) -> int | None:
+    """Line of the TOML text where ``key`` (dotted for a table's key: ``physics.lamps``) is given, or None.
+
+    Tables (``[physics]`` then ``lamps = ...``), dotted keys (``physics.lamps = ...``), quoted keys and
+    inline tables (``physics = {lamps = ...}``: the line of ``physics =``) are followed; the line that
+    gives the key itself is preferred, else the one giving the nearest table that holds it."""
+    target = key if isinstance(key, tuple) else tuple(key.split("."))
+    best, best_len = None, 0
+    table = ()
     for number, line in enumerate(text.split("\n"), start=1):
-        if pattern.match(line):
+        header = _TOML_TABLE.match(line)
+        if header:
+            table = _key_path(header.group(1))
+            path = table
+        else:
+            assign = _TOML_ASSIGN.match(line)
+            if not assign:
+                continue
+            path = table + _key_path(assign.group(1))
+        if path and path[:len(target)] == target:      # the key itself (or a key inside it)
             return number
-    return None
+        n = len(path)
+        if n and path == target[:n] and n > best_len:  # a table holding it
+            best, best_len = number, n
+    return best
 
 
 def _is_number(x) -> bool:
@@ -162,7 +199,7 @@ def chamber_from_spec(spec: dict, base: Path, name: str = "<scene>", text: str =
     unknown = set(spec) - _SCENE_KEYS
     if unknown:
         k = sorted(unknown)[0]
-        raise err("unknown key %r (known: %s)" % (k, ", ".join(sorted(_SCENE_KEYS))), k)
+        raise err("unknown key %r (known: %s)" % (k, ", ".join(sorted(_SCENE_KEYS))), (k,))
     if "geometry" not in spec:
         raise err("missing 'geometry' (a .rad file or a list of them)")
     if spec["geometry"] in ([], ""):
@@ -170,19 +207,24 @@ def chamber_from_spec(spec: dict, base: Path, name: str = "<scene>", text: str =
     if "name" in spec and not isinstance(spec["name"], str):
         raise err("'name' must be a string", "name")
 
-    def paths(key):
+    inputs = [Path(name)]          # every file read, so that results never overwrite one (cli.check_outputs)
+
+    def paths(key, many=True, folder=False):
         value = spec.get(key)
         if value is None:
             return []
-        items = value if isinstance(value, list) else [value]
+        items = value if isinstance(value, list) and many else [value]
         if not all(isinstance(v, str) and v for v in items):
-            raise err("%r must be a path or a list of paths" % key, key)
+            raise err("%r must be a path%s" % (key, " or a list of paths" if many else ""), key)
         out = []
         for v in items:
             p = (base / v) if not Path(v).is_absolute() else Path(v)
             if not p.exists():
                 raise err("%s file not found: %s" % (key, p), key)
+            if not folder and not p.is_file():     # a folder, a pipe, a device: would fail, hang or never end
+                raise err("%s must be a regular file: %s" % (key, p), key)
             out.append(p)
+        inputs.extend(out)
         return out
 
     unit = spec.get("unit", "mm")
@@ -203,6 +245,11 @@ def chamber_from_spec(spec: dict, base: Path, name: str = "<scene>", text: str =
         if len(set(bands)) < len(bands):
             raise err("'bands': a band is given twice (%s)" % ", ".join(
                 "[%g, %g]" % b for b in sorted(set(b for b in bands if bands.count(b) > 1))), "bands")
+        labels = ["%g-%g" % b for b in bands]       # Chamber.band_labels: how results name a band
+        for i, label in enumerate(labels):
+            if label in labels[:i]:
+                raise err("'bands': %r and %r would both be named %s in the results (6 significant digits)"
+                          % (list(bands[labels.index(label)]), list(bands[i]), label), "bands")
     physics = Physics()
     table = spec.get("physics")
     if table is not None and not isinstance(table, dict):
@@ -210,25 +257,25 @@ def chamber_from_spec(spec: dict, base: Path, name: str = "<scene>", text: str =
                   "physics")
     for key, value in (table or {}).items():
         if key not in _PHYSICS_KEYS:
-            raise err("unknown physics option %r (known: %s)" % (key, ", ".join(_PHYSICS_KEYS)), key)
+            raise err("unknown physics option %r (known: %s)" % (key, ", ".join(_PHYSICS_KEYS)), ("physics", key))
         kind = _PHYSICS_KEYS[key]
         if kind is float and isinstance(value, int) and not isinstance(value, bool):
             value = float(value)
         if not isinstance(value, kind) or (kind is int and isinstance(value, bool)):
-            raise err("physics option %r must be a %s" % (key, kind.__name__), key)
+            raise err("physics option %r must be a %s" % (key, kind.__name__), ("physics", key))
         setattr(physics, key, value)
     if physics.lamps not in ("line", "lambertian"):
-        raise err("physics.lamps must be 'line' or 'lambertian'", "lamps")
+        raise err("physics.lamps must be 'line' or 'lambertian'", "physics.lamps")
     if physics.specular not in ("mirror", "phong"):
-        raise err("physics.specular must be 'mirror' or 'phong'", "specular")
+        raise err("physics.specular must be 'mirror' or 'phong'", "physics.specular")
     if physics.coplanar not in ("random", "arbitrary"):
-        raise err("physics.coplanar must be 'random' or 'arbitrary'", "coplanar")
+        raise err("physics.coplanar must be 'random' or 'arbitrary'", "physics.coplanar")
     if physics.materials not in ("sec2", "radiance"):
-        raise err("physics.materials must be 'sec2' or 'radiance'", "materials")
+        raise err("physics.materials must be 'sec2' or 'radiance'", "physics.materials")
     if not 0 <= physics.max_depth <= 10000:
-        raise err("physics.max_depth must be in 0..10000", "max_depth")
+        raise err("physics.max_depth must be in 0..10000", "physics.max_depth")
     if not 0 < physics.offset < 1e-2:   # NaN fails too
-        raise err("physics.offset must be in (0, 0.01)", "offset")
+        raise err("physics.offset must be in (0, 0.01)", "physics.offset")
 
     def on_scene_line(exc, key):
         """An error about a file as a whole (no line in it) moved to the scene file's line naming it."""
@@ -243,9 +290,9 @@ def chamber_from_spec(spec: dict, base: Path, name: str = "<scene>", text: str =
         except InputError as exc:
             raise on_scene_line(exc, key) from None
 
-    optical_dirs = paths("optical")
+    optical_dirs = paths("optical", many=False, folder=True)     # read_optical_folder says if it is not one
     optical = read("optical", read_optical_folder, optical_dirs[0]) if optical_dirs else None
-    spec_files = paths("specularities")
+    spec_files = paths("specularities", many=False)
     specularities = read("specularities", read_specularities, spec_files[0]) if spec_files else None
     if optical is not None and bands is None:
         raise err("'optical' tables need 'bands' (e.g. bands = [[655, 665]])", "optical")
@@ -265,7 +312,7 @@ def chamber_from_spec(spec: dict, base: Path, name: str = "<scene>", text: str =
         solid.extend(read("solid_sensors", read_rad, p))
     sensors = Sensors.concat(read("sensors", read_sensors, p) for p in paths("sensors"))
     spectrum = None
-    for p in paths("spectrum"):
+    for p in paths("spectrum", many=False):
         from .units import read_lamp_spectrum
         spectrum = read("spectrum", read_lamp_spectrum, p)
     try:
@@ -273,6 +320,13 @@ def chamber_from_spec(spec: dict, base: Path, name: str = "<scene>", text: str =
                                 physics=physics, unit=unit, solid=solid, remove=remove)
     except InputError as exc:    # the scene as a whole (no light), or a table that misses a band
         raise on_scene_line(exc, getattr(exc, "key", None)) from None
+    _warn_unused_tables(chamber, optical, specularities, spec_files[0] if spec_files else None)
+    if spectrum is not None:
+        if bands is None:
+            raise err("'spectrum' (photons -> µmol m-2 s-1 per band) needs 'bands' (e.g. bands = [[655, 665]])",
+                      "spectrum")
+        from .units import band_photon_flux
+        read("spectrum", lambda s: band_photon_flux(s, bands), spectrum)    # every band covered, before tracing
     chamber.spectrum = spectrum
     chamber.optical = optical
     if pos is not None:
@@ -287,11 +341,35 @@ def chamber_from_spec(spec: dict, base: Path, name: str = "<scene>", text: str =
             raise err("'calibration' must be a csv path or {file = \"measured.csv\", tolerance = D} "
                       "(D > 0, scene units)", "calibration")
         p = base / cal["file"] if not Path(cal["file"]).is_absolute() else Path(cal["file"])
-        if not p.exists():
+        if not p.is_file():
             raise err("calibration file not found: %s" % p, "calibration")
+        inputs.append(p)
         chamber.calibration = (p, None if tol is None else float(tol))
     chamber.source = name
+    chamber.inputs = inputs
     return chamber
+
+
+def _warn_unused_tables(chamber, optical, specularities, spec_path):
+    """Warn about measured values that no material of the scene uses: a table or specularity whose name
+    differs from a material's only in case (names are case-sensitive, as in Radiance), or a table outside
+    a ``Plant`` folder (those are for organs) named after no material — the material then silently keeps
+    its ``.rad`` values."""
+    names = {m.name for m in chamber.materials}
+    lower = {n.lower(): n for n in names}
+
+    def hint(name):
+        near = lower.get(name.lower())
+        return "; the scene has %r (names are case-sensitive)" % near if near else ""
+
+    for kind, tables in ((("reflectance", optical.reflectance), ("transmittance", optical.transmittance))
+                         if optical is not None else ()):
+        for name, table in tables.items():
+            if name not in names and (name.lower() in lower or "Plant" not in Path(table.path).parts):
+                log.warning("%s: no material %r in the scene uses this %s table%s", table.path, name, kind, hint(name))
+    for name in specularities or {}:
+        if name not in names and name.lower() in lower:
+            log.warning("%s: no material %r in the scene uses its specular fraction%s", spec_path, name, hint(name))
 
 
 # ------------------------------------------------------------------------------------------

@@ -130,7 +130,7 @@ def read_sensors(path) -> Sensors:
     # where a decimal comma is then allowed)
     head = next((ln for ln in lines if ln.strip()), "")
     delimiter = ";" if ";" in head and "," not in head else "\t" if "\t" in head and "," not in head else ","
-    reader = csv.reader(lines, delimiter=delimiter)
+    reader = csv.reader(lines, delimiter=delimiter, skipinitialspace=True)     # `X, "Y", Z` as `X,Y,Z`
     try:
         numbered = [(reader.line_num, row) for row in reader]
     except csv.Error as exc:
@@ -152,6 +152,10 @@ def read_sensors(path) -> Sensors:
         raise _error("unknown sensor header %r: expected %s (discs) or %s (quads), comma-separated%s"
                      % (",".join(header), ",".join(_DISC_COLUMNS), ",".join(_QUAD_COLUMNS), not_utf8(",".join(header))),
                      path, header_line)
+    twice = sorted(c for c in columns if header.count(c) > 1)
+    if twice:
+        raise _error("column %s appears %d times in the header: which one is meant?"
+                     % (twice[0], header.count(twice[0])), path, header_line)
     index = [header.index(c) for c in columns]
     needed = max(index) + 1          # cells a row must have: up to the last column we read
     values, source = [], []
@@ -183,6 +187,9 @@ def read_sensors(path) -> Sensors:
         for s in range(S):
             if not radius[s] > 0:
                 raise _error("sensor radius must be > 0, got %g" % radius[s], path, source[s][1])
+            if not np.pi * radius[s] ** 2 > 0:
+                raise _error("sensor radius %g is too small: its area is 0 in double precision" % radius[s],
+                             path, source[s][1])
     else:
         corners = v.reshape(S, 4, 3)
         center = corners.mean(1)

@@ -26,13 +26,16 @@ red:far-red ratio of Smith, 1982 / Sager et al., 1988, on SEC2's bands).
 """
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from .errors import InputError
-from .optical import Spectrum
+from .optical import Spectrum, _text_lines
+
+log = logging.getLogger("lpy_light")
 
 RED, FAR_RED = (655.0, 665.0), (725.0, 735.0)
 
@@ -40,10 +43,7 @@ RED, FAR_RED = (655.0, 665.0), (725.0, 735.0)
 def read_lamp_spectrum(path) -> Spectrum:
     """Read a lamp spectrum: two columns, wavelength (nm) and µmol m⁻² s⁻¹ nm⁻¹; one header line."""
     path = Path(path)
-    try:
-        lines = path.read_text(encoding="utf-8", errors="replace").splitlines()
-    except OSError as exc:
-        raise InputError("cannot read spectrum: %s" % exc.strerror, path) from None
+    lines = _text_lines(path, "spectrum")      # lines counted on \n only, as an editor counts them
     wl, val = [], []
     for number, line in enumerate(lines, start=1):
         # fields are separated by blanks, ';' or ','; with blanks or ';', a ',' is a decimal comma
@@ -114,6 +114,11 @@ def from_spectrum(photons, photons_std, area_m2, spectrum, bands, reference=None
     with np.errstate(divide="ignore", invalid="ignore"):
         scale = M / mean
         scale_std = scale * mean_std / mean
+    for b in np.flatnonzero(~(mean > 0)):
+        log.warning("band %g-%g nm: no photon reached the reference sensors, so the lamp spectrum cannot scale "
+                    "this band: its ppfd is left empty (trace more photons, or check that light reaches the "
+                    "sensors)" % tuple(bands[b]))
+        scale[b] = scale_std[b] = np.nan
     return Normalisation(scale, scale_std, "lamp spectrum %s averaged over %d reference sensors"
                          % (spectrum.path, len(ref)))
 
@@ -123,8 +128,8 @@ def ppfd(photons, photons_std, area_m2, norm: Normalisation):
     density = photons / area_m2[:, None]
     value = density * norm.scale
     with np.errstate(divide="ignore", invalid="ignore"):
-        rel = np.sqrt((photons_std / np.where(photons > 0, photons, np.nan)) ** 2
-                      + (norm.scale_std / norm.scale) ** 2)
+        scale_rel = np.where(norm.scale != 0, norm.scale_std / norm.scale, 0.0)   # a dark band: ppfd exactly 0
+        rel = np.sqrt((photons_std / np.where(photons > 0, photons, np.nan)) ** 2 + scale_rel ** 2)
     std = np.where(photons > 0, value * rel, photons_std / area_m2[:, None] * norm.scale)
     return value, std
 
@@ -271,7 +276,9 @@ def read_measured(path, chamber, tolerance: float | None = None) -> Measured:
             text = fh.read()
     except OSError as exc:
         raise InputError("cannot read calibration file: %s" % exc.strerror, path) from None
-    lines = text.splitlines()
+    lines = [line[:-1] if line.endswith("\r") else line for line in text.split("\n")]   # as an editor counts
+    while lines and not lines[-1].strip():
+        lines.pop()
     if not lines or not lines[0].strip():
         raise InputError("calibration file is empty (expected a header x,y,z or sensor, then band columns)", path, 1)
     delimiter = ";" if lines[0].count(";") > lines[0].count(",") else ","

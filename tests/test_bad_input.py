@@ -174,7 +174,7 @@ CASES = [
     ("optical-band-partly-covered", {TABLE_PATH: table(["%d;0,5" % w for w in range(600, 660)])}, "wall.csv",
      None, "band 655-665 nm is not covered"),
     ("geometry-is-a-folder", {"scene.toml": TOML.replace('"scene.rad"', '"optical"')}, "scene.toml", 1,
-     "cannot read Radiance file"),
+     "geometry must be a regular file"),
     # --- optical tables -------------------------------------------------------------------
     ("optical-comma-separator", {TABLE_PATH: table(["600,0,5"] + ["%d;0,5" % w for w in range(601, 701)])},
      "wall.csv", 2, "2 fields separated by ';'"),
@@ -293,6 +293,34 @@ CASES = [
      "2 numbers"),
     ("spectrum-decreasing", {"spectrum.txt": "wavelength value\n600 1\n599 1\n"}, "spectrum.txt", 3,
      "wavelengths must increase"),
+    # --- eighth session: a second round of unseen inputs ---------------------------------------
+    ("toml-physics-dotted-key", toml_with('physics.lamps = "laser"'), "scene.toml", 8, "'line' or 'lambertian'"),
+    ("toml-physics-inline-table", toml_with('physics = {lamps = "laser"}'), "scene.toml", 8,
+     "'line' or 'lambertian'"),
+    ("toml-physics-key-shadows-top-level", toml_with('[physics]\nunit = "m"'), "scene.toml", 9,
+     "unknown physics option 'unit'"),
+    ("toml-geometry-subtable", toml_with('geometry.file = "scene.rad"', replace="geometry"), "scene.toml", 1,
+     "'geometry' must be a path"),
+    ("toml-quoted-unknown-key", toml_with('"g\\u00e9ometry" = "scene.rad"'), "scene.toml", 8,
+     "unknown key 'g\u00e9ometry'"),
+    ("toml-optical-list", toml_with('optical = ["optical", "optical"]', replace="optical"), "scene.toml", 4,
+     "'optical' must be a path"),
+    ("toml-spectrum-list", toml_with('spectrum = ["spectrum.txt", "spectrum.txt"]', replace="spectrum"),
+     "scene.toml", 7, "'spectrum' must be a path"),
+    ("toml-bands-same-label", toml_with("bands = [[655, 665], [655.0000001, 665]]", replace="bands"), "scene.toml",
+     6, "would both be named 655-665"),
+    ("spectrum-not-covering-band", {"spectrum.txt": "wavelength value\n400 1\n402 1\n404 1\n"}, "scene.toml", 7,
+     "band 655-665 nm is not covered"),
+    ("spectrum-form-feed-in-a-line", {"spectrum.txt": "wavelength value\n600 1\x0c\n602 1\n604 x\n"},
+     "spectrum.txt", 4, "got '604 x'"),
+    ("rad-light-negative", rad_plus("void light neg 0 0 3 -10 -10 -10\n"), "scene.rad", N_RAD + 1,
+     "cannot emit negative light"),
+    ("rad-light-mixed-signs", rad_plus("void light neg 0 0 3 30 -10 10\n"), "scene.rad", N_RAD + 1,
+     "cannot emit negative light"),
+    ("sensors-column-twice", {"sensors.csv": "X,Y,Z,rayon_capteur,Xnorm,Ynorm,Znorm,X\n1,2,3,4,0,0,1,5\n"},
+     "sensors.csv", 1, "column X appears 2 times"),
+    ("sensors-radius-underflows", {"sensors.csv": D + "300,300,400,1e-300,0,0,1\n"}, "sensors.csv", 2,
+     "its area is 0"),
 ]
 
 
@@ -332,6 +360,7 @@ def test_corpus_is_large_and_base_is_valid(tmp_path, capsys):
     {"scene.rad": RAD.encode() + b"# latin-1 comment: caf\xe9\n"},      # and non-UTF-8 in a comment
     {"scene.rad": RAD.replace("\n", "\r\n")},
     {"spec.csv": "material;specularity\nwall;0,1\n"},                   # French csv
+    {"sensors.csv": 'X, "Y", Z, rayon_capteur, Xnorm, Ynorm, Znorm\n300, 300, 400, 60, 0, 0, 1\n'},   # spaces, quotes
     {"scene.toml": TOML.replace("bands = [[655, 665]]", "bands = [[600, 700], [655, 665]]")},   # overlapping bands
     {"spectrum.txt": "wavelength;value\n" + "".join("%d;0,5\n" % w for w in range(600, 701, 2))},
     {"scene.rad": "\ufeff" + RAD, "scene.toml": "\ufeff" + TOML},      # byte-order marks (Windows editors)
@@ -361,7 +390,9 @@ def test_decimal_comma_spectrum_is_read_as_such(tmp_path):
     (["--threads", "0"], "--threads must be in 1..1024"),
     (["--threads", "100000"], "--threads must be in 1..1024"),
     (["--precision", "2"], "--precision must be"),
-    (["--nee-picks", "-1"], "--nee-picks must be >= 0"),
+    (["--nee-picks", "-1"], "--nee-picks must be in 0..4096"),
+    (["--nee-picks", str(2 ** 31 + 5), "--estimator", "nee"], "--nee-picks must be in 0..4096"),
+    (["--reference-band", "700-800"], "--reference-band needs --reference"),
 ])
 def test_bad_options(tmp_path, capsys, args, words):
     scene = write(tmp_path / "s")
@@ -541,3 +572,98 @@ def test_a_scene_without_sensors_writes_the_header(tmp_path, capsys):
     scene = write(tmp_path / "s", {"scene.toml": TOML.replace('sensors = "sensors.csv"\n', "")})
     assert cli.main(["run", str(scene), "--photons", "1000", "--out", str(tmp_path / "out"), "--quiet"]) == 0
     assert (tmp_path / "out" / "sensors.csv").read_text().startswith("sensor,band,photons,photons_std")
+
+
+def test_special_files_are_refused_not_read(tmp_path, capsys):
+    """A named pipe (or a device) given as an input file would hang the run or read forever: refused at once,
+    on the scene file's line."""
+    import os
+    scene = write(tmp_path / "s", toml_with('geometry = "pipe.rad"', replace="geometry"))
+    os.mkfifo(tmp_path / "s" / "pipe.rad")
+    code = cli.main(["run", str(scene), "--photons", "1000", "--out", str(tmp_path / "out"), "--quiet"])
+    lines = capsys.readouterr().err.splitlines()
+    assert code == 2 and len(lines) == 1 and "scene.toml:1: geometry must be a regular file" in lines[0], lines
+
+
+@pytest.mark.parametrize("argv", [["--photons", "0"], ["--estimator", "mc"], ["--photons", "abc"]])
+def test_refused_options_leave_no_earlier_results(tmp_path, capsys, argv):
+    """argparse refuses the command line before any scene is read: an earlier run's results in --out go too."""
+    scene = write(tmp_path / "s")
+    out = tmp_path / "out"
+    assert cli.main(["run", str(scene), "--photons", "1000", "--out", str(out), "--quiet"]) == 0
+    assert (out / "summary.json").exists()
+    with pytest.raises(SystemExit) as exc:
+        cli.main(["run", str(scene), "--out=%s" % out, "--quiet"] + argv)
+    assert exc.value.code == 2
+    assert not (out / "summary.json").exists() and not (out / "sensors.csv").exists()
+
+
+def test_results_never_overwrite_or_remove_an_input(tmp_path, capsys):
+    """--out in the scene's own folder, whose sensor list is called sensors.csv: the run is refused (it would
+    overwrite its input), and a refused run there removes no input named like a result."""
+    folder = tmp_path / "s"
+    scene = write(folder)
+    before = (folder / "sensors.csv").read_text()
+    for out in (str(folder), ""):
+        code = cli.main(["run", str(scene), "--photons", "1000", "--out", out, "--quiet"])
+        lines = capsys.readouterr().err.splitlines()
+        assert code == 2 and len(lines) == 1, lines
+    assert "would overwrite the input file" in cli_message(tmp_path, scene, str(folder), capsys)
+    bad = write(tmp_path / "bad", rad_plus("wall polygon bad 0 0 6 0 0 0 1 0 0\n"))
+    code = cli.main(["run", str(bad), "--photons", "1000", "--out", str(tmp_path / "bad"), "--quiet"])
+    assert code == 2
+    assert (folder / "sensors.csv").read_text() == before
+    assert (tmp_path / "bad" / "sensors.csv").read_text() == before     # an input, not an earlier result
+
+
+def cli_message(tmp_path, scene, out, capsys):
+    cli.main(["run", str(scene), "--photons", "1000", "--out", out, "--quiet"])
+    return capsys.readouterr().err
+
+
+def test_undefined_numbers_are_written_as_null_and_empty_cells(tmp_path, caplog):
+    """A scene whose lamp lights no sensor (all below the floor, facing down): the lamp spectrum cannot scale
+    the bands, so ppfd is undefined: empty cells in sensors.csv, null in summary.json (strict JSON), a warning."""
+    import csv
+    import json
+    scene = write(tmp_path / "s", {"sensors.csv": D + "300,300,-400,60,0,0,-1\n"})
+    out = tmp_path / "out"
+    assert cli.main(["run", str(scene), "--photons", "2000", "--out", str(out), "--quiet"]) == 0
+    assert "ppfd is left empty" in caplog.text
+    summary = json.loads((out / "summary.json").read_text(), parse_constant=lambda c: pytest.fail(c))
+    assert summary["normalisation"]["scale"] == [None]
+    rows = list(csv.DictReader(open(out / "sensors.csv")))
+    assert rows[0]["photons"] == "0.0" and rows[0]["ppfd"] == "" and rows[0]["ppfd_std"] == ""
+
+
+@pytest.mark.parametrize("name, text, line, words", [
+    ("mesures.txt", "# actualNbPhotons many\nnb particules = 5\n", 1, "'# actualNbPhotons N'"),
+    ("mesures.txt", "nb particules = 5\nnb particules = -5\n", 2, "N >= 0"),
+    ("mesures.txt", "nb particules = nan\n", 1, "'nb particules = N' (a finite number)"),
+    ("sensors.csv", "sensor,photons,photons_std\n0,1,1\n", 1, "column band"),
+    ("sensors.csv", "sensor,band,photons,photons_std\n0,655-665,many,1\n", 2, "photons (a finite number)"),
+])
+def test_bad_reference_files(tmp_path, capsys, name, text, line, words):
+    """--reference files are input too: refused with their file and line, never a traceback."""
+    scene = write(tmp_path / "s")
+    ref = tmp_path / "ref" / name
+    ref.parent.mkdir()
+    ref.write_text(text)
+    (ref.parent / "summary.json").write_text('{"photons": 1000}')
+    code = cli.main(["run", str(scene), "--photons", "1000", "--out", str(tmp_path / "out"), "--quiet",
+                     "--reference", str(ref)])
+    lines = capsys.readouterr().err.splitlines()
+    assert code == 2 and len(lines) == 1, lines
+    assert "%s:%d: " % (name, line) in lines[0] and words in lines[0], lines
+
+
+def test_tables_no_material_uses_are_warned_about(tmp_path, caplog):
+    """A table or a specular fraction whose name differs from a material's only in case is not used (the
+    material keeps its .rad values): warned about, naming the file and the material meant."""
+    scene = write(tmp_path / "s", {TABLE_PATH: None, TABLE_PATH.replace("wall", "Wall"): table(),
+                                   "spec.csv": "material,specularity\nWall,0.1\n",
+                                   "optical/Env/ReflectancesMean/notes.txt": "a note\n"})
+    assert cli.main(["run", str(scene), "--photons", "1000", "--out", str(tmp_path / "out"), "--quiet"]) == 0
+    assert "Wall.csv: no material 'Wall' in the scene uses this reflectance table; the scene has 'wall'" in caplog.text
+    assert "spec.csv: no material 'Wall' in the scene uses its specular fraction" in caplog.text
+    assert "notes.txt: not read (optical tables are .csv files)" in caplog.text

@@ -89,6 +89,28 @@ def test_polygon_with_a_hole_cut_by_a_seam(seam_at):
     centroids = tris.mean(axis=1)
     assert not np.any((np.abs(centroids[:, 0] - 5) < 1) & (np.abs(centroids[:, 1] - 5) < 1))
 
+def test_many_sided_polygons():
+    """A tessellated disc of 12 000 sides (convex: one fan, at once) and a 3 000-point star (ear clipping, each
+    round vectorised) keep their exact area and winding; a pentagram, whose corners all turn the same way but
+    which turns twice, is not taken for convex."""
+    import numpy as np
+    from lpy_light.geometry import triangle_areas, triangle_normals, triangulate_polygon
+    for n, bumpy in ((12000, 0.0), (3000, 0.3)):
+        a = np.linspace(0, 2 * np.pi, n + 1)[:-1]
+        r = 1 + bumpy * (np.arange(n) % 2)
+        pts = np.stack([r * np.cos(a), r * np.sin(a), np.zeros(n)], axis=1)
+        tris = triangulate_polygon(pts)
+        x, y = pts[:, 0], pts[:, 1]
+        shoelace = 0.5 * abs(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1)))
+        assert len(tris) == n - 2
+        assert triangle_areas(tris).sum() == pytest.approx(shoelace, rel=1e-12)
+        np.testing.assert_allclose(triangle_normals(tris)[:, 2], 1)
+    k = np.arange(5) * 4 * np.pi / 5
+    star = triangulate_polygon(np.stack([np.cos(k), np.sin(k), 0 * k], axis=1))
+    fan = np.stack([np.cos(k), np.sin(k), 0 * k], axis=1)[[[4, 0, 1], [4, 1, 2], [2, 3, 4]]]
+    assert not np.array_equal(star, fan)
+
+
 def test_material_readings_sec2_and_radiance():
     """SEC2 reads trans as (R = colour, T = trans); Radiance splits C(1-s)(1-t) / s / C(1-s)t."""
     import numpy as np
