@@ -173,8 +173,9 @@ def load_scene(path, **overrides) -> Chamber:
         text = path.read_text(encoding="utf-8-sig")     # a byte-order mark, as some editors write, is dropped
     except OSError as exc:
         raise InputError("cannot read scene file: %s" % exc.strerror, path) from None
-    except UnicodeDecodeError:
-        raise InputError("scene file is not UTF-8 text", path) from None
+    except UnicodeDecodeError as exc:
+        raise InputError("scene file is not UTF-8 text (byte 0x%02x)" % exc.object[exc.start], path,
+                         exc.object.count(b"\n", 0, exc.start) + 1) from None
     try:
         spec = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
@@ -419,6 +420,9 @@ def build_chamber(prims, sensors=None, bands=None, optical=None, specularities=N
             if prim.modifier != "void":
                 raise InputError("material %s %s: modifier %r not supported (materials must be modified by "
                                  "'void')" % (t, prim.identifier, prim.modifier), prim.path, prim.line)
+            if prim.identifier == "void":
+                raise InputError("%s void: 'void' is Radiance's name for no modifier, not a material's name" % t,
+                                 prim.path, prim.line)
             materials.append(build_material(prim, bands, optical, specularities, physics.materials))
             current[prim.identifier] = len(materials) - 1
             continue

@@ -287,7 +287,7 @@ CASES = [
     ("toml-physics-not-a-table", toml_with("physics = 5"), "scene.toml", 8, "'physics' must be a table"),
     ("toml-plant-position", toml_with("plant_position = [1, 2]"), "scene.toml", 8, "[x, y, z]"),
     ("toml-remove-missing", toml_with('remove = ["nothing"]'), "scene.toml", 8, "not in the geometry: nothing"),
-    ("toml-not-utf8", {"scene.toml": TOML.encode() + b"# caf\xe9\n"}, "scene.toml", None, "not UTF-8"),
+    ("toml-not-utf8", {"scene.toml": TOML.encode() + b"# caf\xe9\n"}, "scene.toml", 8, "not UTF-8 text (byte 0xe9)"),
     # --- lamp spectrum --------------------------------------------------------------------
     ("spectrum-three-columns", {"spectrum.txt": "wavelength value\n600 1 2\n"}, "spectrum.txt", 2,
      "2 numbers"),
@@ -319,6 +319,8 @@ CASES = [
      "cannot emit negative light"),
     ("sensors-column-twice", {"sensors.csv": "X,Y,Z,rayon_capteur,Xnorm,Ynorm,Znorm,X\n1,2,3,4,0,0,1,5\n"},
      "sensors.csv", 1, "column X appears 2 times"),
+    ("rad-material-named-void", rad_plus("void plastic void 0 0 5 .5 .5 .5 0 0\n"), "scene.rad", N_RAD + 1,
+     "'void' is Radiance's name for no modifier"),
     ("sensors-radius-underflows", {"sensors.csv": D + "300,300,400,1e-300,0,0,1\n"}, "sensors.csv", 2,
      "its area is 0"),
 ]
