@@ -56,6 +56,7 @@ END_REL = 2.0 ** -13
 NEAR = 3.0       # exclusion radius around a quad or mesh target, in its bounding radii
 FAR = 10.0      # discs farther than FAR radii: points drawn by area
 NEAR_PICKED = 1.0    # discs nearer than this · radius · √(targets) get their own next event (:func:`near_discs`)
+NEAR_FLOOR = 2.0     # ... and always those nearer than this · radius (:func:`near_discs`)
 ZONE_HEIGHT = 4.0    # a disc whose centre is nearer to a plane than this · its radius gets a zone on it
 INV_4PI = 1.0 / (4.0 * math.pi)
 
@@ -329,7 +330,8 @@ def next_event(vx, vy, vz, nx, ny, nz, mode, m, stat, w, state, scene, occluded_
         if d2c < tgt_near2[t]:
             continue          # too close: 1/d² would be heavy-tailed; this segment's crossings are counted
         # (out_k, out_w hold at most 3 per iteration: size them 3 * (picks + n_targets))
-        if control and scale != 1.0 and j >= n_near and kind <= T_QUAD:     # a pick (not a near disc's own event)
+        if (control and scale != 1.0 and j >= n_near and kind <= T_QUAD     # a pick (not a near disc's own event),
+                and not (kind == T_DISC and d2c < (NEAR_FLOOR * sens_radius[tgt_ref[t]]) ** 2)):   # γ a fair guess
             gam, cg = point_view(t, vx, vy, vz, nx, ny, nz, mode, tgt_ref, tgt_area, tgt_center, sens_normal)
             if gam > 0.0:
                 out_k[n_out] = tgt_row[t]
@@ -513,7 +515,9 @@ def near_discs(tri_verts, center, disc_radius, factor=NEAR_PICKED):
     |v − c_t| < ``factor`` · a_t · √n (a_t its radius): there the disc's solid angle exceeds about
     π / (factor² · n).  That radius is capped at 1.5 × the distance from c_t to the nearest other target,
     so that a vertex amid a dense grid of many discs makes a handful of own events (≲ 10 in a plane), not
-    hundreds.  ``tri_verts`` (T, 3, 3); ``center`` (n, 3); ``disc_radius`` (n,), 0 for targets that
+    hundreds -- but never below :data:`NEAR_FLOOR` · a_t: closer than that the control variate's point
+    value (∝ area / distance²) is no approximation of the disc (a disc wider than the room beside a small
+    one gave picks of ±10⁴ times the light, a 500 % σ).  ``tri_verts`` (T, 3, 3); ``center`` (n, 3); ``disc_radius`` (n,), 0 for targets that
     are not discs.  Returns ``near_start`` (T + 1,) int64, ``near_list`` int64 (the discs whose near zone
     meets each triangle's bounding box, a superset of those near any of its points) and ``near_r2`` (n,).
     """
@@ -523,7 +527,7 @@ def near_discs(tri_verts, center, disc_radius, factor=NEAR_PICKED):
         gap = center - center[t]
         d2 = np.einsum("ij,ij->i", gap, gap)
         d2[t] = np.inf
-        radius[t] = min(radius[t], 1.5 * math.sqrt(d2.min()))
+        radius[t] = max(min(radius[t], 1.5 * math.sqrt(d2.min())), NEAR_FLOOR * disc_radius[t])
     near_r2 = np.ascontiguousarray(radius ** 2, dtype=np.float64)
     lo, hi = tri_verts.min(axis=1), tri_verts.max(axis=1)
     pairs_tri, pairs_t = [], []

@@ -46,7 +46,7 @@ from .embree import (ARGS, CAND, CAND_CAP, CAND_COUNT, DIR, GEOM_ID, HIT_U, HIT_
                      PRIM_ID, RAYHIT, TFAR, TNEAR)
 from .ptr import call_ptr3, load_f32, load_i64, load_u32, store_f32, store_i64, store_u32
 from .rng import seed_stream, uniform
-from .nee import (_ZERO32, _gamma32, point_view, view_factors, END_REL, INV_4PI, T_DISC, T_MESH2, V_ISOTROPIC,
+from .nee import (_ZERO32, _gamma32, point_view, view_factors, END_REL, INV_4PI, NEAR_FLOOR, T_DISC, T_MESH2, V_ISOTROPIC,
                   V_LAMBERT, V_SURFACE, disc_point_by_solid_angle, mesh_point, next_event, reaches, sensor_point,
                   set_ray, visible)
 from .sampling import cosine_hemisphere, mirror, phong_lobe, search_cdf, to_world, uniform_sphere
@@ -652,7 +652,7 @@ def _emit(e, kind, data, state, offset_rel):
 @njit(nogil=True, cache=True, _nrt=False)
 def _trace_photons(scene, intersect_fn, scratch, seed, first, count,
                    geom_offset, tri_normal, tri_mat, tri_receiver,
-                   mat_prob, mat_cum, mat_phong,
+                   mat_prob, mat_cum, band_pass, mat_phong,
                    sens_kind, sens_center, sens_normal, sens_radius, sens_corners,
                    emit_kind, emit_data, emit_cdf,
                    max_depth, offset_rel, n_receivers, expected_absorption,
@@ -685,7 +685,7 @@ def _trace_photons(scene, intersect_fn, scratch, seed, first, count,
     zone_on = zone_picks > 0.0 and nee_sensors and zone_i.shape[0] > 0 and 0 < picks < n_tgt
     stat_planes = n_mat + emit_nee.shape[0]
 
-    n_pass = mat_cum.shape[2]      # 1: all bands on one path; n_bands (analog): one path per band
+    n_pass = mat_cum.shape[2]      # paths per photon: 1 (all bands on one), n_bands (analog), or band groups
     nh = 0
     for path in range(count * n_pass):
         i = path // n_pass           # the photon
@@ -696,9 +696,9 @@ def _trace_photons(scene, intersect_fn, scratch, seed, first, count,
         ox, oy, oz, dx, dy, dz, enx, eny, enz, emode, oscale = _emit(e, emit_kind, emit_data, state, offset_rel)
         if n_pass == 1:
             w[:] = 1.0
-        else:
-            w[:] = 0.0
-            w[pb] = 1.0
+        else:                        # this path carries its bands only
+            for b in range(n_bands):
+                w[b] = 1.0 if band_pass[b] == pb else 0.0
         depth = 0
         after_diffuse = False   # does the current segment start at a next-event vertex?
         vx0, vy0, vz0 = ox, oy, oz   # that vertex
@@ -951,7 +951,7 @@ def _trace_photons(scene, intersect_fn, scratch, seed, first, count,
 @njit(nogil=True, cache=True)
 def trace_chunk(scene, intersect_fn, scratch, seed, first, count,
                 geom_offset, tri_normal, tri_mat, tri_receiver,
-                mat_prob, mat_cum, mat_phong,
+                mat_prob, mat_cum, band_pass, mat_phong,
                 sens_kind, sens_center, sens_normal, sens_radius, sens_corners,
                 emit_kind, emit_data, emit_cdf,
                 max_depth, offset_rel, n_receivers, expected_absorption,
@@ -980,9 +980,10 @@ def trace_chunk(scene, intersect_fn, scratch, seed, first, count,
     tri_mat : (T, 2) int32, material seen from the front / back side.
     tri_receiver : (T,) int32, receiver index or -1.
     mat_prob : (M, 5, B) float64, probability of each event per band.
-    mat_cum : (M, 5, P) float64, cumulative event probabilities q of the event drawn: P = 1, shared by
-        the bands; or P = B (``analog``), one per band, and every photon is traced once per band, its path
-        for band b carrying weight 1 in band b only (:func:`lpy_light.materials.sampling_tables`).
+    mat_cum : (M, 5, P) float64, cumulative event probabilities q of the event drawn on each of the P paths
+        every photon is traced on: P = 1, shared by the bands; P = B (``analog``), one per band; or one per
+        group of bands that can share q without a weight growing (:func:`lpy_light.materials.band_passes`).
+    band_pass : (B,) int64, the path that carries band b: its weight starts at 1 there, 0 on the others.
     mat_phong : (M,) float64, Phong exponent of the specular lobe (inf = mirror).
     sens_* : transparent sensors: kind, centre (S, 3), unit normal (S, 3),
         radius (S,), quad corners (S, 4, 3).
@@ -1069,8 +1070,10 @@ def trace_chunk(scene, intersect_fn, scratch, seed, first, count,
             cv_center[c, t] = tgt_center[t, c]
             cv_normal[c, t] = sens_normal[tgt_ref[t], c]
         cv_area[t] = tgt_area[t]
-        cv_thr[0, t] = tgt_near2[t]
-        cv_thr[1, t] = max(tgt_near2[t], near_r2[t])
+        # no control within NEAR_FLOOR radii of a disc: its point value is no approximation there
+        floor2 = (NEAR_FLOOR * sens_radius[tgt_ref[t]]) ** 2 if tgt_kind[t] == T_DISC else 0.0
+        cv_thr[0, t] = max(tgt_near2[t], floor2)
+        cv_thr[1, t] = max(tgt_near2[t], floor2, near_r2[t])
         cv_row[t] = tgt_row[t]
     cv_runs = np.empty((n_cv, 2), dtype=np.int64)     # runs of targets on one plane with one normal:
     cv_plane = np.empty(n_cv, dtype=np.float32)       # first, end; the plane's offset n·c
@@ -1097,7 +1100,7 @@ def trace_chunk(scene, intersect_fn, scratch, seed, first, count,
     seen = np.empty(CAND_CAP + (int(np.max(np.diff(flush_start))) if flush_start.shape[0] > 1 else 0), dtype=np.int64)
     _trace_photons(scene, intersect_fn, scratch, seed, first, count,
                    geom_offset, tri_normal, tri_mat, tri_receiver,
-                   mat_prob, mat_cum, mat_phong,
+                   mat_prob, mat_cum, band_pass, mat_phong,
                    sens_kind, sens_center, sens_normal, sens_radius, sens_corners,
                    emit_kind, emit_data, emit_cdf,
                    max_depth, offset_rel, n_receivers, expected_absorption,

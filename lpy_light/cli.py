@@ -390,30 +390,28 @@ def cmd_grow(args) -> int:
     return 130 if partial else 0
 
 
-def _is_our_result(path, ours_summary: bool) -> bool:
-    """Whether ``path`` (one of ``RESULT_FILES``) was written by lpy-light: an input that happens to carry the
-    same name (a sensor list called ``sensors.csv`` in ``--out``) is never removed."""
+def _is_a_sensor_list(path) -> bool:
+    """Whether a csv in ``--out`` is a sensor list (an input: SEC2's discs or quads), not a result."""
+    from .sensors import _DISC_COLUMNS, _QUAD_COLUMNS
     try:
-        if path.suffix == ".csv":
-            with open(path, "rb") as f:
-                return f.read(16).startswith((b"sensor,", b"receiver,", b"step,"))
-        if path.name == "summary.json":
-            summary = json.loads(path.read_text(encoding="utf-8"))
-            return isinstance(summary, dict) and ("energy_closure" in summary or "photons_per_step" in summary)
-    except (OSError, ValueError):
+        with open(path, "rb") as f:
+            head = f.read(4096).decode("utf-8-sig", errors="replace").split("\n")[0]
+    except OSError:
         return False
-    return ours_summary            # plant.png: along with our summary
+    names = {c.strip().strip('"').strip() for c in head.replace(";", ",").replace("\t", ",").split(",")}
+    return set(_DISC_COLUMNS) <= names or set(_QUAD_COLUMNS) <= names
 
 
 def _remove_stale_results(out):
-    """After bad input, ``--out`` holds no results: those of an earlier run there would pass for this one's."""
+    """After bad input, ``--out`` holds no results: those of an earlier run there would pass for this one's.
+    A sensor list that happens to be called ``sensors.csv`` there (``--out`` = the scene's folder) is an
+    input, and stays."""
     from .results import RESULT_FILES
     if not out or not Path(out).is_dir():
         return
-    ours_summary = _is_our_result(Path(out) / "summary.json", False)
     for name in RESULT_FILES:
         path = Path(out) / name
-        if path.is_file() and _is_our_result(path, ours_summary):
+        if path.is_file() and not (path.suffix == ".csv" and _is_a_sensor_list(path)):
             try:
                 path.unlink()
             except OSError:

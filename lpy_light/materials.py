@@ -136,21 +136,47 @@ def black(n_bands: int, name: str = "black") -> Material:
 ESTIMATORS = ("weighted", "analog")
 
 
+def band_passes(prob: np.ndarray) -> np.ndarray:
+    """(B,) the pass (path) that carries each band, for ``prob`` (M, 5, B): bands share a path as long as
+    Σ_e max_b P_e,b over the group's bands stays <= 1 for every material (e = the four scattering events).
+
+    Then q_e = max over the group's bands of P_e,b is a probability table and no weight factor
+    P_e,b / q_e exceeds 1.  Where it would sum above 1 (a dichroic film: R = 0.95 in blue, T = 0.95 in
+    red), scaling q down lets a band's weight grow bounce after bounce (×1.9 per hit there), an estimate
+    whose σ cannot be trusted; those bands travel on paths of their own instead.  Greedy, in band order:
+    one pass for every measured chamber and plant seen so far."""
+    scatter = prob[:, :ABSORB, :]                      # (M, 4, B)
+    passes, tops = np.zeros(prob.shape[2], np.int64), []
+    for b in range(prob.shape[2]):
+        for g, top in enumerate(tops):
+            merged = np.maximum(top, scatter[:, :, b])
+            if np.all(merged.sum(axis=1) <= 1.0 + 1e-12):
+                tops[g] = merged
+                passes[b] = g
+                break
+        else:
+            passes[b] = len(tops)
+            tops.append(scatter[:, :, b].copy())
+    return passes
+
+
 def sampling_tables(materials, specular: str = "mirror", estimator: str = "weighted"):
     """Arrays the kernel needs: ``prob`` (M, 5, B) event probabilities per band,
-    ``cum`` (M, 5, P) cumulative probabilities q of the event drawn (the last
-    slot, "absorb", takes the rest), ``phong`` (M,) lobe exponents (inf =
+    ``cum`` (M, 5, P) cumulative probabilities q of the event drawn on each of P
+    paths per photon (the last slot, "absorb", takes the rest), ``passes`` (B,)
+    the path that carries each band, ``phong`` (M,) lobe exponents (inf =
     perfect mirror).
 
-    ``weighted``: P = 1, q shared by the bands: q_e = max_b P_e,b over the four
-    scattering events (scaled down if they sum above 1), so that the weight
-    factor P_e,b / q_e never exceeds 1; absorption is deposited as an expected
-    value by the kernel.  ``analog``: P = B, q = P_e,b of each band: SEC2's own
-    counting, one band per path; the kernel then traces every photon once per
-    band, each path carrying weight 1 in its band only (a shared q, e.g. the
-    band mean, would let a band whose P_e,b exceeds q grow its weight bounce
-    after bounce: with R = 0.9 / 0.1 / 0.6 the second moment grows by
-    0.81 / 0.53 = 1.5 per bounce, an estimate whose σ cannot be trusted).
+    ``weighted`` (and ``nee``): bands share paths (:func:`band_passes`; P = 1 in
+    every scene so far), q of a path = max over its bands of P_e,b over the four
+    scattering events, so that the weight factor P_e,b / q_e never exceeds 1;
+    absorption is deposited as an expected value by the kernel.  ``analog``:
+    P = B, q = P_e,b of each band: SEC2's own counting, one band per path; the
+    kernel then traces every photon once per band, each path carrying weight 1
+    in its band only (a shared q, e.g. the band mean, would let a band whose
+    P_e,b exceeds q grow its weight bounce after bounce: with R = 0.9 / 0.1 /
+    0.6 the second moment grows by 0.81 / 0.53 = 1.5 per bounce, an estimate
+    whose σ cannot be trusted).
     """
     from .kernel.sampling import phong_exponent
 
@@ -159,11 +185,11 @@ def sampling_tables(materials, specular: str = "mirror", estimator: str = "weigh
     prob = np.stack([m.events for m in materials])
     if estimator == "analog":
         q = prob.copy()                              # (M, 5, B): each band its own path
+        passes = np.arange(prob.shape[2])
     else:
-        q = prob.max(axis=2)
-        q[:, ABSORB] = 0.0
-        over = q.sum(axis=1, keepdims=True)
-        q = np.where(over > 1.0, q / np.maximum(over, 1e-300), q)[:, :, None]
+        passes = band_passes(prob)
+        q = np.stack([prob[:, :, passes == g].max(axis=2) for g in range(passes.max() + 1)], axis=2)
+        q[:, ABSORB, :] = 0.0
     cum = np.cumsum(q, axis=1)
     cum[:, -1, :] = 1.0 + 1e-12   # the last event takes the rest, whatever the rounding
     cum = np.ascontiguousarray(cum)
@@ -171,4 +197,4 @@ def sampling_tables(materials, specular: str = "mirror", estimator: str = "weigh
         phong = np.array([phong_exponent(m.roughness) for m in materials])
     else:
         phong = np.full(len(materials), math.inf)
-    return prob, cum, phong
+    return prob, cum, np.ascontiguousarray(passes), phong

@@ -291,7 +291,7 @@ class KernelScene:
                                             if len(tv) else np.zeros((0, 2, 3)))
         empty = np.tile(np.array([[1.0, 1.0, 1.0], [-1.0, -1.0, -1.0]]), (len(verts), 1, 1))
         self.cop_free = np.ascontiguousarray(np.concatenate([self._chamber_free.reshape(-1, 2, 3), empty]))
-        self.mat_prob, self.mat_cum, self.mat_phong = sampling_tables(
+        self.mat_prob, self.mat_cum, self.band_pass, self.mat_phong = sampling_tables(
             self.materials, self.chamber.physics.specular, "analog" if self.estimator == "analog" else "weighted")
         self.n_receivers = self.n_chamber_receivers + len(self.organs)
         self.n_rows = self.n_sensors + 2 * self.n_receivers + len(self.materials) + 4
@@ -440,7 +440,7 @@ class KernelScene:
         phys = self.chamber.physics
         trace_chunk(self.scene.handle, self.intersect, scratch.ctypes.data, seed, first, count,
                     self.geom_offset, self.tri_normal, self.tri_mat, self.tri_receiver,
-                    self.mat_prob, self.mat_cum, self.mat_phong, *self.sens, *self.emit,
+                    self.mat_prob, self.mat_cum, self.band_pass, self.mat_phong, *self.sens, *self.emit,
                     phys.max_depth, phys.offset, self.n_receivers, self.estimator != "analog",
                     self.occluded, self.nee_sensors, self.nee_receivers, *self.targets, self.tri_verts,
                     self.mat_nee, self.emit_nee, self.nee_picks, self.cop_start, self.cop_list, self.cop_box,
