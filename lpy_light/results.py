@@ -34,6 +34,10 @@ def atomic_write(path: Path, text: str):
         raise
 
 
+#: rounding allowed per photon in the energy closure's residual (photons): far below any physical effect
+CLOSURE_ROUNDING = 1e-10
+
+
 def energy_closure(chamber, result) -> dict:
     """Per band: emitted = absorbed (per material) + escaped + cut + lost, with the residual's σ."""
     N = result.photons
@@ -52,9 +56,10 @@ def energy_closure(chamber, result) -> dict:
             "emitted": N, "absorbed": absorbed, "absorbed_total": float(fate[:M, b].sum()),
             "escaped": float(fate[M, b]), "cut_at_max_depth": float(fate[M + 1, b]),
             "lost": float(fate[M + 2, b]), "accounted": total, "residual": N - total,
-            # the residual is a sum of per-photon (1 - total deposit) terms: zero for the
-            # analog estimator with one band, zero within residual_std otherwise
-            "residual_std": float(accounted_std[b]),
+            # the residual is a sum of per-photon (1 - total deposit) terms: zero for the analog
+            # estimator (but for rounding), zero within residual_std otherwise; residual_std adds
+            # 1e-10 per photon for the rounding (the event tables' 1e-12 guard, float64 sums)
+            "residual_std": math.hypot(float(accounted_std[b]), CLOSURE_ROUNDING * N),
         }
     return out
 

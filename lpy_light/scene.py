@@ -464,6 +464,10 @@ def build_chamber(prims, sensors=None, bands=None, optical=None, specularities=N
             raise InputError("%s %s: coordinate %g is beyond ±%g scene units (the tracer works in single "
                              "precision); is the unit right?" % (t, prim.identifier, big, MAX_COORDINATE),
                              prim.path, prim.line)
+        if emitting and t in ("tube", "bubble") and physics.lamps == "lambertian":
+            raise InputError("%s %s: a %s faces inward, and so would its light; lamps = 'lambertian' emits from "
+                             "cylinders and spheres outward only (use a cylinder or sphere)" % (t, prim.identifier, t),
+                             prim.path, prim.line)
         try:
             if t == "polygon":
                 surf = geo.triangulate_polygon(np.reshape(r, (-1, 3)))

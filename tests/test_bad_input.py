@@ -321,6 +321,9 @@ CASES = [
      "sensors.csv", 1, "column X appears 2 times"),
     ("rad-material-named-void", rad_plus("void plastic void 0 0 5 .5 .5 .5 0 0\n"), "scene.rad", N_RAD + 1,
      "'void' is Radiance's name for no modifier"),
+    ("rad-inward-lambertian-lamp", {"scene.rad": RAD + "lamp tube t 0 0 7 100 100 500 100 900 500 5\n",
+                                    "scene.toml": TOML + '[physics]\nlamps = "lambertian"\n'}, "scene.rad", N_RAD + 1,
+     "a tube faces inward"),
     ("sensors-radius-underflows", {"sensors.csv": D + "300,300,400,1e-300,0,0,1\n"}, "sensors.csv", 2,
      "its area is 0"),
 ]
