@@ -94,18 +94,55 @@ def visible(occluded_fn, scene, scratch, ox, oy, oz, dx, dy, dz, tfar):
 
 
 @njit(inline="always", cache=True)
-def reaches(intersect_fn, scene, scratch, ox, oy, oz, dx, dy, dz, near, far, receiver, geom_offset, tri_receiver):
-    """Is the first surface met from o along unit d, before ``far``, a triangle of ``receiver``, no nearer than
-    ``near``?  One ``rtcIntersect1`` call (the filters as for photons).  For a point x on a mesh target at
-    distance L, with near and far L ∓ its float32 tolerance: x is seen, and neither the target itself (a
-    bud's front) nor another surface within that tolerance of x (the internode a bud sinks into) is in the
-    way — which a shadow ray stopping that tolerance short of x cannot tell."""
+def _competes(j, px, py, pz, dx, dy, dz, cop_box, tri_verts, tri_normal, tri_two_sided):
+    """Does triangle j contain p (on its plane) and face the ray (or is it two-sided)?"""
+    if not (cop_box[j, 0, 0] <= px <= cop_box[j, 1, 0] and cop_box[j, 0, 1] <= py <= cop_box[j, 1, 1]
+            and cop_box[j, 0, 2] <= pz <= cop_box[j, 1, 2]):
+        return False
+    nx, ny, nz = tri_normal[j, 0], tri_normal[j, 1], tri_normal[j, 2]
+    if tri_two_sided[j] == 0 and dx * nx + dy * ny + dz * nz >= 0.0:
+        return False
+    for i in range(3):
+        k = (i + 1) % 3
+        ax, ay, az = (tri_verts[j, k, 0] - tri_verts[j, i, 0], tri_verts[j, k, 1] - tri_verts[j, i, 1],
+                      tri_verts[j, k, 2] - tri_verts[j, i, 2])
+        bx, by, bz = px - tri_verts[j, i, 0], py - tri_verts[j, i, 1], pz - tri_verts[j, i, 2]
+        if (ay * bz - az * by) * nx + (az * bx - ax * bz) * ny + (ax * by - ay * bx) * nz < 0.0:
+            return False
+    return True
+
+
+@njit(inline="always", cache=True)
+def reaches(intersect_fn, scene, scratch, ox, oy, oz, dx, dy, dz, near, far, receiver, geom_offset, tri_receiver,
+            px, py, pz, cop_start, cop_list, cop_box, cop_free, tri_verts, tri_normal, tri_two_sided):
+    """The share of the light arriving at x = (px, py, pz), a point of a mesh target reached from o along unit
+    d, that receiver ``receiver`` gets: 0 unless the first surface met, before ``far``, no nearer than
+    ``near``, lies at x; one ``rtcIntersect1`` call (the filters as for photons).  With near and far L ∓
+    x's float32 tolerance (L its distance): x is seen, and neither the target itself (a bud's front) nor
+    another surface within that tolerance of x (the internode a bud sinks into) is in the way — which a
+    shadow ray stopping that tolerance short of x cannot tell.  Where coincident coplanar surfaces cover x
+    (``coplanar = "random"``: a photon there picks one of those facing it at random, :func:`kernel.trace._pick_coplanar`),
+    the share is the receiver's part of them — what the photon's pick gives it on average (a patch lying
+    on the floor: 1/2) — not whichever of them Embree's tie happens to return first."""
     set_ray(scratch, ox, oy, oz, dx, dy, dz, far)
     call_ptr3(intersect_fn, scene, scratch + RAYHIT, scratch + ARGS)
     gid = load_u32(scratch + RAYHIT + GEOM_ID)
     if gid == INVALID_ID or load_f32(scratch + RAYHIT + TFAR) < near:
-        return False
-    return tri_receiver[load_u32(scratch + RAYHIT + PRIM_ID) + geom_offset[gid]] == receiver
+        return 0.0
+    tri = load_u32(scratch + RAYHIT + PRIM_ID) + geom_offset[gid]
+    mine = 1 if tri_receiver[tri] == receiver else 0
+    if cop_start[tri + 1] == cop_start[tri] or (
+            cop_free[tri, 0, 0] < px < cop_free[tri, 1, 0] and cop_free[tri, 0, 1] < py < cop_free[tri, 1, 1]
+            and cop_free[tri, 0, 2] < pz < cop_free[tri, 1, 2]):
+        return float(mine)                                  # no partner reaches x
+    n_in = 1
+    for a in range(cop_start[tri], cop_start[tri + 1]):
+        j = cop_list[a]
+        if _competes(j, px, py, pz, dx, dy, dz, cop_box, tri_verts, tri_normal, tri_two_sided):
+            n_in += 1
+            if tri_receiver[j] == receiver:
+                mine += 1
+    return mine / n_in
 
 
 @njit(inline="always", cache=True)
@@ -277,7 +314,7 @@ def next_event(vx, vy, vz, nx, ny, nz, mode, m, stat, w, state, scene, occluded_
                sens_center, sens_normal, sens_radius, sens_corners,
                nee_tri, nee_cdf, tri_verts, tri_normal, tri_mat, mat_prob, contrib, out_k, out_w, counters,
                nee_stats, picks, vscale, vtri, near_start, near_list, near_r2, control, cover_pid, zone_start,
-               zone_i, intersect_fn, geom_offset, tri_receiver):
+               zone_i, intersect_fn, geom_offset, tri_receiver, cop_start, cop_list, cop_box, cop_free, tri_two_sided):
     """Expected deposits of the segment leaving vertex v on every target; returns how many were written.
 
     v (scene units) with unit normal n (for Lambertian emission: the emitter's
@@ -408,9 +445,14 @@ def next_event(vx, vy, vz, nx, ny, nz, mode, m, stat, w, state, scene, occluded_
         nee_stats[stat, 0] += 1
         ox, oy, oz = vx + side * eps * nx, vy + side * eps * ny, vz + side * eps * nz
         if g >= 0:
-            if not reaches(intersect_fn, scene, scratch, ox, oy, oz, dx, dy, dz, dist - tol, dist + tol, tgt_ref[t],
-                           geom_offset, tri_receiver):
+            share = reaches(intersect_fn, scene, scratch, ox, oy, oz, dx, dy, dz, dist - tol, dist + tol, tgt_ref[t],
+                            geom_offset, tri_receiver, px, py, pz, cop_start, cop_list, cop_box, cop_free, tri_verts,
+                            tri_normal, tri_two_sided)
+            if share == 0.0:
                 continue
+            if share != 1.0:
+                for b in range(n_bands):
+                    contrib[b] *= share
         elif not visible(occluded_fn, scene, scratch, ox, oy, oz, dx, dy, dz, dist - tol):
             continue
         nee_stats[stat, 1] += 1

@@ -46,7 +46,7 @@ from .embree import (ARGS, CAND, CAND_CAP, CAND_COUNT, DIR, GEOM_ID, HIT_U, HIT_
                      PRIM_ID, RAYHIT, TFAR, TNEAR)
 from .ptr import call_ptr3, load_f32, load_i64, load_u32, store_f32, store_i64, store_u32
 from .rng import seed_stream, uniform
-from .nee import (_ZERO32, _gamma32, point_view, view_factors, END_REL, INV_4PI, NEAR_FLOOR, T_DISC, T_MESH2, V_ISOTROPIC,
+from .nee import (_ZERO32, _competes, _gamma32, point_view, view_factors, END_REL, INV_4PI, NEAR_FLOOR, T_DISC, T_MESH2, V_ISOTROPIC,
                   V_LAMBERT, V_SURFACE, disc_point_by_solid_angle, mesh_point, next_event, reaches, sensor_point,
                   set_ray, visible)
 from .sampling import cosine_hemisphere, mirror, phong_lobe, search_cdf, to_world, uniform_sphere
@@ -235,25 +235,6 @@ def _counted(skip, t, x, y, z, tgt_center, tgt_near2):
 
 
 @njit(inline="always", cache=True)
-def _competes(j, px, py, pz, dx, dy, dz, cop_box, tri_verts, tri_normal, tri_two_sided):
-    """Does triangle j contain p (on its plane) and face the ray (or is it two-sided)?"""
-    if not (cop_box[j, 0, 0] <= px <= cop_box[j, 1, 0] and cop_box[j, 0, 1] <= py <= cop_box[j, 1, 1]
-            and cop_box[j, 0, 2] <= pz <= cop_box[j, 1, 2]):
-        return False
-    nx, ny, nz = tri_normal[j, 0], tri_normal[j, 1], tri_normal[j, 2]
-    if tri_two_sided[j] == 0 and dx * nx + dy * ny + dz * nz >= 0.0:
-        return False
-    for i in range(3):
-        k = (i + 1) % 3
-        ax, ay, az = (tri_verts[j, k, 0] - tri_verts[j, i, 0], tri_verts[j, k, 1] - tri_verts[j, i, 1],
-                      tri_verts[j, k, 2] - tri_verts[j, i, 2])
-        bx, by, bz = px - tri_verts[j, i, 0], py - tri_verts[j, i, 1], pz - tri_verts[j, i, 2]
-        if (ay * bz - az * by) * nx + (az * bx - ax * bz) * ny + (ax * by - ay * bx) * nz < 0.0:
-            return False
-    return True
-
-
-@njit(inline="always", cache=True)
 def _pick_coplanar(tri, px, py, pz, dx, dy, dz, cop_start, cop_list, cop_box, cop_free, tri_verts, tri_normal,
                    tri_two_sided, state):
     """One of ``tri`` and its coplanar candidates that contain p and face the ray, uniformly at random
@@ -438,9 +419,14 @@ def _image_event(vx, vy, vz, nx, ny, nz, mode, m, w, state, scene, intersect_fn,
         counters[4] += 1
         ox, oy, oz = hx + eps2 * tnx, hy + eps2 * tny, hz + eps2 * tnz
         if g >= 0:
-            if not reaches(intersect_fn, scene, scratch, ox, oy, oz, fx, fy, fz, d2 - tol, d2 + tol, tgt_ref[t],
-                           geom_offset, tri_receiver):
+            share = reaches(intersect_fn, scene, scratch, ox, oy, oz, fx, fy, fz, d2 - tol, d2 + tol, tgt_ref[t],
+                            geom_offset, tri_receiver, px, py, pz, cop_start, cop_list, cop_box, cop_free, tri_verts,
+                            tri_normal, tri_two_sided)
+            if share == 0.0:
                 continue
+            if share != 1.0:
+                for b in range(n_bands):
+                    contrib[b] *= share
         elif not visible(occluded_fn, scene, scratch, ox, oy, oz, fx, fy, fz, d2 - tol):
             continue
         nee_stats[stat0 + pl, 1] += 1
@@ -713,7 +699,8 @@ def _trace_photons(scene, intersect_fn, scratch, seed, first, count,
                                tgt_center, tgt_near2, sens_center, sens_normal, sens_radius, sens_corners, nee_tri, nee_cdf, tri_verts,
                                tri_normal, tri_mat, mat_prob, contrib, out_k, out_w, counters, nee_stats,
                                picks, oscale, -1, near_start, near_list, near_r2, control, -1, zone_start, zone_i,
-                               intersect_fn, geom_offset, tri_receiver)
+                               intersect_fn, geom_offset, tri_receiver, cop_start, cop_list, cop_box, cop_free,
+                               tri_two_sided)
             for a in range(n_out):
                 nh = _record(out_k[a], out_w[a], acc, touched, rows, nh)
             n_img = _n_images(img_picks, state) if img_on and max_depth > 0 else 0
@@ -852,7 +839,8 @@ def _trace_photons(scene, intersect_fn, scratch, seed, first, count,
                                    tgt_area, tgt_center, tgt_near2, sens_center, sens_normal, sens_radius, sens_corners, nee_tri, nee_cdf,
                                    tri_verts, tri_normal, tri_mat, mat_prob, contrib, out_k, out_w, counters,
                                    nee_stats, picks, pscale + oscale, tri, near_start, near_list, near_r2, control,
-                                   cover, zone_start, zone_i, intersect_fn, geom_offset, tri_receiver)
+                                   cover, zone_start, zone_i, intersect_fn, geom_offset, tri_receiver, cop_start,
+                                   cop_list, cop_box, cop_free, tri_two_sided)
                 for a in range(n_out):
                     nh = _record(out_k[a], out_w[a], acc, touched, rows, nh)
                 # and through a mirror (if not cut at that mirror); the call itself is not free: only if drawn
