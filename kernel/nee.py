@@ -146,6 +146,20 @@ def reaches(intersect_fn, scene, scratch, ox, oy, oz, dx, dy, dz, near, far, rec
 
 
 @njit(inline="always", cache=True)
+def seen_share(g, intersect_fn, occluded_fn, scene, scratch, ox, oy, oz, dx, dy, dz, near, far, receiver,
+               geom_offset, tri_receiver, px, py, pz, cop_start, cop_list, cop_box, cop_free, tri_verts, tri_normal,
+               tri_two_sided):
+    """The share of the light at x = (px, py, pz) that a target gets, seen from o along unit d: for a mesh
+    target (``g`` >= 0, its triangle) :func:`reaches`; for a sensor 1 if nothing is in the way up to
+    ``near`` (its tolerance short of x), else 0."""
+    if g >= 0:
+        return reaches(intersect_fn, scene, scratch, ox, oy, oz, dx, dy, dz, near, far, receiver, geom_offset,
+                       tri_receiver, px, py, pz, cop_start, cop_list, cop_box, cop_free, tri_verts, tri_normal,
+                       tri_two_sided)
+    return 1.0 if visible(occluded_fn, scene, scratch, ox, oy, oz, dx, dy, dz, near) else 0.0
+
+
+@njit(inline="always", cache=True)
 def _tri_point(a, u1, u2):
     su = math.sqrt(u1)
     b0, b1 = 1.0 - su, u2 * su
@@ -444,17 +458,13 @@ def next_event(vx, vy, vz, nx, ny, nz, mode, m, stat, w, state, scene, occluded_
         counters[4] += 1
         nee_stats[stat, 0] += 1
         ox, oy, oz = vx + side * eps * nx, vy + side * eps * ny, vz + side * eps * nz
-        if g >= 0:
-            share = reaches(intersect_fn, scene, scratch, ox, oy, oz, dx, dy, dz, dist - tol, dist + tol, tgt_ref[t],
-                            geom_offset, tri_receiver, px, py, pz, cop_start, cop_list, cop_box, cop_free, tri_verts,
-                            tri_normal, tri_two_sided)
-            if share == 0.0:
-                continue
-            if share != 1.0:
-                for b in range(n_bands):
-                    contrib[b] *= share
-        elif not visible(occluded_fn, scene, scratch, ox, oy, oz, dx, dy, dz, dist - tol):
+        share = seen_share(g, intersect_fn, occluded_fn, scene, scratch, ox, oy, oz, dx, dy, dz, dist - tol,
+                           dist + tol, tgt_ref[t], geom_offset, tri_receiver, px, py, pz, cop_start, cop_list, cop_box,
+                           cop_free, tri_verts, tri_normal, tri_two_sided)
+        if share == 0.0:
             continue
+        for b in range(n_bands):
+            contrib[b] *= share
         nee_stats[stat, 1] += 1
         out_k[n_out] = tgt_row[t]
         for b in range(n_bands):

@@ -46,9 +46,9 @@ from .embree import (ARGS, CAND, CAND_CAP, CAND_COUNT, DIR, GEOM_ID, HIT_U, HIT_
                      PRIM_ID, RAYHIT, TFAR, TNEAR)
 from .ptr import call_ptr3, load_f32, load_i64, load_u32, store_f32, store_i64, store_u32
 from .rng import seed_stream, uniform
-from .nee import (_ZERO32, _competes, _gamma32, point_view, view_factors, END_REL, INV_4PI, NEAR_FLOOR, T_DISC, T_MESH2, V_ISOTROPIC,
-                  V_LAMBERT, V_SURFACE, disc_point_by_solid_angle, mesh_point, next_event, reaches, sensor_point,
-                  set_ray, visible)
+from .nee import (_ZERO32, _competes, _gamma32, END_REL, INV_4PI, NEAR_FLOOR, T_DISC, T_MESH2, V_ISOTROPIC,
+                  V_LAMBERT, V_SURFACE, disc_point_by_solid_angle, mesh_point, next_event, point_view, seen_share,
+                  sensor_point, set_ray, view_factors, visible)
 from .sampling import cosine_hemisphere, mirror, phong_lobe, search_cdf, to_world, uniform_sphere
 
 # scattering events, in the order their probabilities are accumulated
@@ -418,17 +418,13 @@ def _image_event(vx, vy, vz, nx, ny, nz, mode, m, w, state, scene, intersect_fn,
             continue
         counters[4] += 1
         ox, oy, oz = hx + eps2 * tnx, hy + eps2 * tny, hz + eps2 * tnz
-        if g >= 0:
-            share = reaches(intersect_fn, scene, scratch, ox, oy, oz, fx, fy, fz, d2 - tol, d2 + tol, tgt_ref[t],
-                            geom_offset, tri_receiver, px, py, pz, cop_start, cop_list, cop_box, cop_free, tri_verts,
-                            tri_normal, tri_two_sided)
-            if share == 0.0:
-                continue
-            if share != 1.0:
-                for b in range(n_bands):
-                    contrib[b] *= share
-        elif not visible(occluded_fn, scene, scratch, ox, oy, oz, fx, fy, fz, d2 - tol):
+        share = seen_share(g, intersect_fn, occluded_fn, scene, scratch, ox, oy, oz, fx, fy, fz, d2 - tol, d2 + tol,
+                           tgt_ref[t], geom_offset, tri_receiver, px, py, pz, cop_start, cop_list, cop_box, cop_free,
+                           tri_verts, tri_normal, tri_two_sided)
+        if share == 0.0:
             continue
+        for b in range(n_bands):
+            contrib[b] *= share
         nee_stats[stat0 + pl, 1] += 1
         out_k[n_out] = tgt_row[t]
         for b in range(n_bands):
