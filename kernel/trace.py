@@ -47,7 +47,7 @@ from .embree import (ARGS, CAND, CAND_CAP, CAND_COUNT, DIR, GEOM_ID, HIT_U, HIT_
 from .ptr import call_ptr3, load_f32, load_i64, load_u32, store_f32, store_i64, store_u32
 from .rng import seed_stream, uniform
 from .nee import (_ZERO32, _competes, _gamma32, END_REL, INV_4PI, NEAR_FLOOR, T_DISC, T_MESH2, V_ISOTROPIC,
-                  V_LAMBERT, V_SURFACE, disc_point_by_solid_angle, mesh_point, next_event, point_view, seen_share,
+                  V_LAMBERT, V_SURFACE, disc_point_by_solid_angle, mesh_point, next_event, seen_share,
                   sensor_point, set_ray, view_factors, visible)
 from .sampling import cosine_hemisphere, mirror, phong_lobe, search_cdf, to_world, uniform_sphere
 

@@ -12,7 +12,6 @@ SCENE may be a path or the name of a built-in scene (``angers``,
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 import os
 import signal
