@@ -20,23 +20,11 @@ import threading
 from pathlib import Path
 
 from .errors import InputError, LpyLightError
+from .scene import builtin_scenes, resolve_scene  # noqa: F401  (scene lookup lives with scenes)
 
-DATA = Path(__file__).parent / "data"
 MAX_NEE_PICKS = 4096      # shadow rays per vertex; 0 (every target) is the way to ask for more
-
-
-def builtin_scenes() -> dict:
-    return {p.stem: p for p in sorted(DATA.glob("*/*.toml"))}
-
-
-def resolve_scene(name: str) -> Path:
-    path = Path(name)
-    if path.exists():
-        return path
-    scenes = builtin_scenes()
-    if name in scenes:
-        return scenes[name]
-    raise InputError("scene file not found (built-in scenes: %s)" % ", ".join(scenes), name)
+DEFAULT_PRECISION = 0.01  # `run` without --photons/--precision: every sensor and band to 1 % (nee)
+DEFAULT_CAP = 100_000_000  # ... but no more photons than this (a sensor in the dark would hold the run)
 
 
 def check_out_dir(out):
@@ -88,16 +76,20 @@ def _parser() -> argparse.ArgumentParser:
     r = sub.add_parser("run", help="trace photons through a scene and write sensors.csv and summary.json")
     r.add_argument("scene", help="scene TOML file, or a built-in scene name (see 'lpy-light scenes')")
     r.add_argument("--photons", type=_count, default=None,
-                   help="photons (all bands travel together; default 1e6, or a cap of 1e10 with --precision)")
+                   help="photons (all bands travel together). Alone: exactly this many. With --precision: a cap "
+                        "(default cap 1e10). Without either: nee stops at 1%% (cap %g), weighted/analog trace 1e6"
+                        % DEFAULT_CAP)
     r.add_argument("--precision", type=float, default=None, metavar="REL",
-                   help="stop when every sensor's relative σ is at most REL (e.g. 0.01); --photons is then a cap")
+                   help="stop when every sensor's relative σ is at most REL (default with nee and no --photons: "
+                        "%g); --photons is then a cap" % DEFAULT_PRECISION)
     r.add_argument("--seed", type=int, default=1, help="random seed (default 1); results depend on it alone")
     r.add_argument("--threads", type=int, default=None, help="threads (default: all cores)")
     r.add_argument("--out", required=True, help="output folder")
-    r.add_argument("--estimator", choices=("weighted", "nee", "analog"), default="weighted",
-                   help="weighted (default: expected absorption, bands share events without any weight "
-                        "growing), nee (weighted + next-event tallies on sensors and receivers: far fewer "
-                        "photons for the same precision) or analog (SEC2's counting: one photon, one event)")
+    r.add_argument("--estimator", choices=("nee", "weighted", "analog"), default="nee",
+                   help="nee (default: expected absorption at every hit plus next-event tallies on sensors and "
+                        "receivers: the most precise per second), weighted (no next events: every photon's "
+                        "own hits, bands share events; for the energy closure per material) or analog (SEC2's "
+                        "counting: one photon, one event, raw hit counts)")
     r.add_argument("--quiet", action="store_true", help="no progress lines")
     r.add_argument("--nee-picks", type=int, default=1, metavar="K",
                    help="with --estimator nee: targets per next event, drawn at random (default 1; 0 = all)")
@@ -140,6 +132,8 @@ def cmd_run(args) -> int:
     check_out_dir(args.out)
     if args.precision is not None and not 0 < args.precision < 1:
         raise InputError("--precision must be a relative σ in (0, 1), e.g. 0.01")
+    if args.photons is None and args.precision is None and args.estimator == "nee":
+        args.precision, args.photons = DEFAULT_PRECISION, DEFAULT_CAP      # the best answer by default
     if args.photons is None:
         args.photons = 10_000_000_000 if args.precision is not None else 1_000_000
     path = resolve_scene(args.scene)
@@ -202,20 +196,43 @@ def cmd_run(args) -> int:
         print("lpy-light: %s vs %s (band %s): %s" % (path.name, ref.source, ref_band, comparison.line()))
     if args.plot:
         _plots(args, chamber, result, norm, comparison, ref, ref_band)
-    if not args.quiet and "relative_sigma" in summary:
-        sig = summary["relative_sigma"]
-        at = sig["max_at"]
-        print("lpy-light: relative σ per sensor and band: median %.3g %%, largest %.3g %% (sensor %d at %s %s, "
-              "band %s)%s" % (100 * sig["median"], 100 * sig["max"], at["sensor"],
-                              ", ".join("%g" % x for x in at["position"]), chamber.unit, at["band"],
-                              "" if args.precision is None else "; --precision %g %s" % (
-                                  args.precision, "reached" if summary.get("precision_reached") else "NOT reached")),
-              file=sys.stderr)
     if not args.quiet:
-        print("lpy-light: %d photons in %.2f s (%.3g photons/s)%s; results in %s"
-              % (result.photons, result.seconds, summary["photons_per_second"] or 0,
-                 " — PARTIAL (interrupted)" if result.partial else "", args.out), file=sys.stderr)
+        for line in _what_it_means(args, chamber, result, summary, norm):
+            print("lpy-light: " + line, file=sys.stderr)
     return 130 if result.partial else 0
+
+
+def _what_it_means(args, chamber, result, summary, norm) -> list:
+    """The lines a run ends with: how long, how precise, where the results are and what their columns hold."""
+    from . import units
+
+    lines = ["%d photons in %.2f s (%.3g photons/s, estimator %s)%s"
+             % (result.photons, result.seconds, summary["photons_per_second"] or 0, result.estimator,
+                " — PARTIAL (interrupted)" if result.partial else "")]
+    sig = summary.get("relative_sigma")
+    if sig is not None:
+        at = sig["max_at"]
+        goal = "" if args.precision is None else "; goal %g %% %s" % (
+            100 * args.precision, "reached" if summary.get("precision_reached") else "NOT reached (cap %d photons: "
+            "raise --photons)" % args.photons)
+        lines.append("standard error per sensor and band: median %.2g %%, largest %.2g %% (sensor %d at %s %s, band %s)%s"
+                     % (100 * sig["median"], 100 * sig["max"], at["sensor"],
+                        ", ".join("%g" % x for x in at["position"]), chamber.unit, at["band"], goal))
+    if len(chamber.sensors) and norm is not None:
+        photons, std = result.sensors()
+        value, _ = units.ppfd(photons, std, chamber.sensors.area * chamber.metres_per_unit ** 2, norm)
+        mean = value.mean(axis=0)
+        shown = ", ".join("%s nm %.4g" % (label, m) for label, m in list(zip(chamber.band_labels, mean))[:4])
+        lines.append("mean ppfd over the %d sensors (µmol m-2 s-1): %s%s%s" % (
+            len(chamber.sensors), shown, ", ..." if len(mean) > 4 else "",
+            "" if norm.assumption != units.SPECTRUM_ASSUMPTION else
+            " (the lamp spectrum's, which sets the units: the map's shape is the simulation's)"))
+    what = ("ppfd ± ppfd_std in µmol m-2 s-1 per sensor and band" if norm is not None else
+            "photons ± photons_std per sensor and band (no lamp spectrum in the scene: no µmol)")
+    extra = " and sensors_derived.csv (PAR, R:FR)" if "derived" in summary else ""
+    lines.append("results in %s: sensors.csv (%s)%s, summary.json (precision, energy closure, settings)"
+                 % (args.out, what, extra))
+    return lines
 
 
 def _before_run(args, chamber):

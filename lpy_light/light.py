@@ -35,7 +35,7 @@ import numpy as np
 from . import simulate, units
 from .errors import InputError
 from .organs import TessellationCache, mesh_key, organ_from_mesh, plant_material
-from .scene import UNITS, load_scene
+from .scene import UNITS, load_scene, resolve_scene
 
 log = logging.getLogger("lpy_light")
 
@@ -134,8 +134,6 @@ class LightModel:
                  threads: int | None = None, plant_unit: str = "cm", position=None, parameter: str = "light",
                  estimator: str = "nee", lamp_flux=None, normalisation_photons: int = 1_000_000,
                  progress=None, nee_picks: int = 2, targets=None, mirror_events: float = 0.2):
-        from .cli import resolve_scene
-
         self.chamber = scene if hasattr(scene, "triangles") else load_scene(resolve_scene(str(scene)))
         if plant_unit not in UNITS:
             raise InputError("unknown plant_unit %r (use one of %s)" % (plant_unit, ", ".join(UNITS)))

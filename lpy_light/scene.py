@@ -166,6 +166,25 @@ def _is_number(x) -> bool:
 MAX_COORDINATE = 1e12
 
 
+DATA = Path(__file__).parent / "data"
+
+
+def builtin_scenes() -> dict:
+    """The scenes shipped with lpy-light: ``{name: path of its TOML}`` (``lpy-light scenes`` lists them)."""
+    return {p.stem: p for p in sorted(DATA.glob("*/*.toml"))}
+
+
+def resolve_scene(name) -> Path:
+    """A scene file's path from a path or a built-in scene's name (``angers``, ``angers-12bands``, ...)."""
+    path = Path(name)
+    if path.exists():
+        return path
+    scenes = builtin_scenes()
+    if str(name) in scenes:
+        return scenes[str(name)]
+    raise InputError("scene file not found (built-in scenes: %s)" % ", ".join(scenes), name)
+
+
 def load_scene(path, **overrides) -> Chamber:
     """Read a scene TOML file and everything it names; return a :class:`Chamber`."""
     path = Path(path)
