@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import math
 import os
 import signal
 import sys
@@ -337,14 +338,72 @@ def _plots(args, chamber, result, norm, comparison, ref, ref_band):
 
 
 def _grow_parser(sub):
-    g = sub.add_parser("grow", help="grow an L-Py model that calls LightModel.intercept() in EndEach; "
-                                    "write organs.csv and a picture of the last step (needs L-Py, from conda)")
+    g = sub.add_parser("grow", help="grow an L-Py model and light it at every step: a model that calls "
+                                    "LightModel.intercept() in EndEach, or any model with --organs; write organs.csv "
+                                    "and pictures (needs L-Py and PlantGL, from conda)")
     g.add_argument("model", help=".lpy file")
-    g.add_argument("--steps", type=_count, required=True, help="derivation steps")
-    g.add_argument("--photons", type=_count, default=None, help="photons per step (default: the model's)")
+    g.add_argument("--steps", type=_count, default=None, help="derivation steps (default: the model's derivation length)")
+    g.add_argument("--photons", type=_count, default=None,
+                   help="photons per step (default: the model's; with a precision, the most a step traces)")
+    g.add_argument("--precision", type=float, default=None, metavar="REL",
+                   help="relative σ to reach on every target organ's PAR and R:FR before a step stops")
+    g.add_argument("--seed", type=int, default=None, help="random seed of the light model (default: the model's)")
     g.add_argument("--threads", type=int, default=None, help="threads (default: all cores)")
     g.add_argument("--out", required=True, help="output folder")
+    g.add_argument("--plot-every", type=_count, default=None, metavar="N",
+                   help="also save plant_<step>.png every N steps (plant.png, the last step, is always saved)")
     g.add_argument("--quiet", action="store_true", help="no progress lines")
+    o = g.add_argument_group("lighting a model that does not call lpy-light (no edit to the model)")
+    o.add_argument("--organs", action="append", default=None, metavar="MODULE=MATERIAL[/BACK]",
+                   help="a module whose shapes are organs, and its optical material (a name from the scene's "
+                        "tables; FRONT/BACK for a leaf's two sides); repeat for each module")
+    o.add_argument("--at", default=None, metavar="X,Y,Z",
+                   help="where the plant's origin stands, in chamber units (default: the scene's plant_position)")
+    o.add_argument("--scene", default="angers-12bands", help="scene file or built-in name (default angers-12bands)")
+    o.add_argument("--plant-unit", default="cm", help="unit of the model's coordinates (default cm)")
+    o.add_argument("--every", type=_count, default=1, metavar="N",
+                   help="light steps N, 2N, ... and always the last (default 1: every step)")
+    o.add_argument("--targets", default=None, metavar="MODULE[,MODULE...]",
+                   help="modules whose light is estimated (default: every --organs module)")
+
+
+def _organ_specs(items) -> dict:
+    """``--organs Leaf=FeuilleVieille_Sup/FeuilleVieille_Inf`` → ``{"Leaf": ("FeuilleVieille_Sup", ...)}``."""
+    organs = {}
+    for item in items:
+        module, eq, material = item.partition("=")
+        module, material = module.strip(), material.strip()
+        if not eq or not module or not material:
+            raise InputError("--organs expects MODULE=MATERIAL or MODULE=FRONT/BACK, got %r" % item)
+        sides = [m.strip() for m in material.split("/")]
+        if len(sides) > 2 or not all(sides):
+            raise InputError("--organs %s: expected one material or FRONT/BACK, got %r" % (module, material))
+        organs[module] = sides[0] if len(sides) == 1 else tuple(sides)
+    return organs
+
+
+def _point(text, what) -> tuple:
+    try:
+        xyz = tuple(float(x) for x in text.split(","))
+    except ValueError:
+        xyz = ()
+    if len(xyz) != 3 or not all(map(math.isfinite, xyz)):
+        raise InputError("%s expects X,Y,Z (three numbers), got %r" % (what, text))
+    return xyz
+
+
+def _outside_model(args, path):
+    """The light model of ``grow --organs``: built here, for a model that knows nothing of lpy-light."""
+    from .light import LightModel
+    from .scene import UNITS
+
+    if args.plant_unit not in UNITS:
+        raise InputError("--plant-unit must be one of %s" % ", ".join(UNITS))
+    organs = _organ_specs(args.organs)
+    targets = None if args.targets is None else [t.strip() for t in args.targets.split(",") if t.strip()]
+    return LightModel(args.scene, organs=organs, photons=args.photons or 1_000_000, precision=args.precision,
+                      seed=1 if args.seed is None else args.seed, threads=args.threads, plant_unit=args.plant_unit,
+                      position=None if args.at is None else _point(args.at, "--at"), parameter=None, targets=targets)
 
 
 def cmd_grow(args) -> int:
@@ -355,55 +414,100 @@ def cmd_grow(args) -> int:
     path = Path(args.model)
     if not path.is_file():
         raise InputError("L-Py model not found", path)
+    check_out_dir(args.out)
+    if args.precision is not None and not 0 < args.precision < 1:
+        raise InputError("--precision must be a relative σ in (0, 1), e.g. 0.05")
+    if args.threads is not None and not 1 <= args.threads <= 1024:
+        raise InputError("--threads must be in 1..1024")
+    outside = args.organs is not None
+    if not outside and (args.at is not None or args.targets is not None):
+        raise InputError("--at and --targets go with --organs (lighting a model from outside)")
     lpy = require_lpy()
     before = len(lightmod.MODELS)
-    variables = {"STEPS": args.steps}
-    if args.photons:
-        variables["PHOTONS"] = args.photons
+    variables = {} if outside else {k: v for k, v in (("STEPS", args.steps), ("PHOTONS", args.photons),
+                                                     ("PRECISION", args.precision), ("SEED", args.seed)) if v}
     try:
         lsys = lpy.Lsystem(str(path), variables)
     except Exception as exc:    # L-Py reports syntax errors as generic exceptions
         raise InputError("L-Py could not read the model: %s" % str(exc).splitlines()[0], path) from None
-    if len(lightmod.MODELS) == before:
-        raise InputError("the model creates no lpy_light.LightModel (see lsystems/rose.lpy)", path)
-    model = lightmod.MODELS[-1]
-    if args.photons:
-        model.photons = args.photons
-    if args.threads:
-        model.threads = args.threads
-    rows, steps = [], []
+    steps = args.steps or lsys.derivationLength
+    if outside:
+        model = _outside_model(args, path)
+    elif len(lightmod.MODELS) == before:
+        raise InputError("the model creates no lpy_light.LightModel: add one (see lsystems/rose.lpy), or light it "
+                         "from outside with --organs MODULE=MATERIAL ... --at X,Y,Z", path)
+    else:
+        model = lightmod.MODELS[-1]
+        for name, value in (("photons", args.photons), ("precision", args.precision), ("seed", args.seed),
+                            ("threads", args.threads)):
+            if value is not None:
+                setattr(model, name, lightmod._photons(value) if name == "photons" else value)
+    out = Path(args.out)
+    rows, summaries = [], []
+    pictures = []
 
     def on_step(step, organs):
         rows.extend(lightmod.organ_rows(step))
-        steps.append({"step": step.step, "organs": len(step.organs), "triangles": step.triangles,
-                      "seconds": step.seconds, "tessellated": step.tessellated, "reused": step.reused})
+        roles = [light.role for light in step.organs.values()]
+        summaries.append({"step": step.step, "organs": len(step.organs), "targets": roles.count("target"),
+                          "shading_only": roles.count("shading only"), "triangles": step.triangles,
+                          "photons": step.photons, "seconds": step.seconds, "tessellated": step.tessellated,
+                          "reused": step.reused, **step.extra})
+        if args.plot_every and organs and (step.step + 1) % args.plot_every == 0:
+            pictures.append(_plant_picture(out / ("plant_%03d.png" % step.step), model, path, step, organs))
         if not args.quiet:
-            print("  step %d: %d organs, %d triangles, %.2f s (%d organs re-tessellated, %d reused)"
-                  % (step.step, len(step.organs), step.triangles, step.seconds, step.tessellated, step.reused),
-                  file=sys.stderr, flush=True)
+            reach = "" if "precision" not in step.extra else (
+                ", σ goal %s" % ("reached" if step.extra["precision_reached"] else "NOT reached"))
+            print("  step %d: %d organs, %d triangles, %d photons%s, %.2f s (%d shapes re-tessellated, %d reused)"
+                  % (step.step, len(step.organs), step.triangles, step.photons, reach, step.seconds, step.tessellated,
+                     step.reused), file=sys.stderr, flush=True)
 
     model.on_step = on_step
+    out.mkdir(parents=True, exist_ok=True)
     partial = False
     lstring = lsys.axiom
-    try:
-        for i in range(args.steps):
-            lstring = lsys.derive(lstring, i, 1)
-    except KeyboardInterrupt:
-        partial = True
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    atomic_write(out / "organs.csv", csv_text(rows))
-    summary = {"model": str(path), "steps": steps, "partial": partial, "photons_per_step": model.photons,
-               "bands": model.chamber.band_labels, "plant_unit_m": model.scale * model.chamber.metres_per_unit}
-    atomic_write(out / "summary.json", json_text(summary))
-    if model.last_step is not None:
+    with model.warnings_once() as seen:
         try:
-            from .plant_view import plant_picture
-            plant_picture(out / "plant.png", model.last_organs, model.last_step.organs,
-                          title="%s, step %d" % (path.stem, model.last_step.step))
-        except ImportError:
-            logging.getLogger("lpy_light").warning("matplotlib not installed: no plant.png")
+            for i in range(steps):
+                lstring = lsys.derive(lstring, i, 1)
+                if outside and ((i + 1) % args.every == 0 or i == steps - 1):
+                    model.step = i
+                    model.intercept(lstring, lsys.sceneInterpretation(lstring))
+        except KeyboardInterrupt:
+            partial = True
+        if not outside and model.last_step is None and not partial:
+            logging.getLogger("lpy_light").warning(
+                "the model's LightModel was never called: call light.intercept(lstring, lscene) in EndEach, with "
+                "frameDisplay(True) in StartEach")
+    atomic_write(out / "organs.csv", csv_text(rows))
+    summary = {"model": str(path), "steps": summaries, "partial": partial, "photons_per_step": model.photons,
+               "precision": model.precision, "lit_from_outside": outside,
+               "bands": model.chamber.band_labels, "plant_unit_m": model.scale * model.chamber.metres_per_unit,
+               "position": list(map(float, model.position)), "warnings": seen.summary()}
+    if model.last_step is not None and model.last_organs:
+        pictures.append(_plant_picture(out / "plant.png", model, path, model.last_step, model.last_organs))
+    summary["pictures"] = [p for p in pictures if p]
+    atomic_write(out / "summary.json", json_text(summary))
+    if not args.quiet:
+        for line in seen.repeated_lines():
+            print("lpy-light: " + line, file=sys.stderr)
+        print("lpy-light: %d step(s) lit; results in %s: organs.csv (per organ and band: ppfd ± ppfd_std µmol m-2 s-1, "
+              "absorbed µmol s-1, par, rfr), summary.json%s" % (len(summaries), out,
+                                                                ", " + ", ".join(Path(p).name for p in summary["pictures"])
+                                                                if summary["pictures"] else ""), file=sys.stderr)
     return 130 if partial else 0
+
+
+def _plant_picture(path, model, source, step, organs):
+    """A PNG of the organs coloured by PAR (fixed scale): its path, or None without matplotlib."""
+    try:
+        from .plant_view import plant_picture
+        plant_picture(path, organs, step.organs, title="%s, step %d" % (Path(source).stem, step.step),
+                      top=model.colour_top)
+        return str(path)
+    except ImportError:
+        logging.getLogger("lpy_light").warning("matplotlib not installed: no %s" % Path(path).name)
+        return None
 
 
 def _is_a_sensor_list(path) -> bool:

@@ -500,7 +500,8 @@ def relative_sigma(tally, tally_prod, n, rows, samples=None) -> np.ndarray:
 
 
 def run(kscene: KernelScene, photons: int, seed: int = 1, threads: int | None = None, progress=None,
-        stop=None, precision: float | None = None, precision_rows=None, min_photons: int = 4 * CHUNK) -> Result:
+        stop=None, precision: float | None = None, precision_rows=None, min_photons: int = 4 * CHUNK,
+        precision_of=None) -> Result:
     """Trace ``photons`` photons over ``threads`` threads.
 
     ``progress(done, total, seconds)`` is called as chunks finish;  ``stop()``
@@ -516,6 +517,8 @@ def run(kscene: KernelScene, photons: int, seed: int = 1, threads: int | None = 
     the sensors, else the receivers' incident rows) that has a value has a
     relative σ ≤ ``precision`` (checked in chunk order after ``min_photons``,
     so the stopping point depends on the seed only); ``photons`` is then a cap.
+    ``precision_of(result)``, if given, replaces that rule: it gets a :class:`Result` of the photons so
+    far and returns the largest relative σ of what the caller reads (e.g. organs' PAR and R:FR).
     ``extra["precision_reached"]`` says whether it was met.  ``progress`` then
     gets, as its total, the photons that the largest σ so far says are needed.
     """
@@ -547,6 +550,16 @@ def run(kscene: KernelScene, photons: int, seed: int = 1, threads: int | None = 
                               kscene.n_sensors + np.arange(kscene.n_receivers))
         precision_rows = np.asarray(precision_rows, dtype=np.int64)
         reached = False
+
+    def largest_sigma(acc, done) -> float:
+        """The largest relative σ the precision goal is about (inf while nothing is tallied)."""
+        if precision_of is not None:
+            return float(precision_of(Result(done, acc[0], acc[1], acc[2], 0.0, threads, seed, kscene.n_sensors,
+                                             kscene.n_receivers, estimator=kscene.estimator)))
+        rel = relative_sigma(acc[0], acc[1], done, precision_rows,
+                             effective_samples(done, acc[2], kscene.n_rows, kscene.n_sensors))
+        return float(rel.max()) if rel.size else float("inf")
+
     # (sums, photons) change together in one assignment, so that an interrupt (KeyboardInterrupt)
     # arriving anywhere leaves the sums of exactly ``done`` photons: a correctly normalised prefix
     state = (acc, 0)
@@ -572,9 +585,7 @@ def run(kscene: KernelScene, photons: int, seed: int = 1, threads: int | None = 
                     acc, done = state
                     worst = None         # with ``precision``: the largest relative σ so far
                     if precision is not None and done >= min(min_photons, photons) and done < photons:
-                        rel = relative_sigma(acc[0], acc[1], done, precision_rows,
-                                             effective_samples(done, acc[2], kscene.n_rows, kscene.n_sensors))
-                        worst = float(rel.max()) if rel.size else float("inf")   # nothing tallied yet
+                        worst = largest_sigma(acc, done)
                     if progress:
                         # with ``precision``, the photons it should take (σ ∝ 1/√N), capped at ``photons``
                         total = photons if not worst or not np.isfinite(worst) else \
@@ -601,9 +612,7 @@ def run(kscene: KernelScene, photons: int, seed: int = 1, threads: int | None = 
                   partial=partial, interrupted=interrupted)
     if precision is not None:
         if not reached and done == photons:
-            rel = relative_sigma(acc[0], acc[1], done, precision_rows,
-                                 effective_samples(done, acc[2], kscene.n_rows, kscene.n_sensors))
-            reached = bool(rel.size and rel.max() <= precision)
+            reached = bool(largest_sigma(acc, done) <= precision)
         result.extra["precision_reached"] = reached
         result.extra["precision"] = precision
     return result
