@@ -97,9 +97,11 @@ def lpy_growth(args):
 
     from lpy_light import light as lightmod
 
-    model_path = Path(__file__).parent.parent / "lsystems" / "rose.lpy"
+    model_path = Path(args.model) if args.model else Path(__file__).parent.parent / "lsystems" / "rose.lpy"
     t0 = time.perf_counter()
-    lsys = Lsystem(str(model_path), {"STEPS": args.steps, "PHOTONS": int(args.photons), "PRECISION": 0})
+    externs = {"PHOTONS": int(args.photons)} if args.model else {"STEPS": args.steps, "PHOTONS": int(args.photons),
+                                                                  "PRECISION": 0}
+    lsys = Lsystem(str(model_path), externs)
     model = lightmod.MODELS[-1]
     if args.threads:
         model.threads = args.threads
@@ -141,6 +143,8 @@ def main():
                     help="next events through a mirror per vertex, on average (default: LightModel's, 0.2)")
     ap.add_argument("--lpy", action="store_true",
                     help="grow lsystems/rose.lpy in the real L-Py (needs L-Py/PlantGL) and time where a step goes")
+    ap.add_argument("--model", default=None,
+                    help="with --lpy: another .lpy model that creates a LightModel (e.g. lsystems/rose-simple4-light.lpy)")
     args = ap.parse_args()
     if args.lpy:
         if "--steps" not in " ".join(__import__("sys").argv):
