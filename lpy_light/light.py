@@ -292,7 +292,7 @@ class LightModel:
         self.kscene.nee_images = self.mirror_events
         self.kscene.retarget()
         if not self._pruned and organs:       # once, with the first plant: which vertices see organs
-            self.kscene.prune_next_events(threads=self.threads)
+            self.kscene.prune_next_events(threads=self.threads, keep=self.materials)   # organs' materials stay on
             self._pruned = True
         read = np.ones(len(organs), bool) if targets is None else np.array(targets, bool)
         precision_of = None
