@@ -25,7 +25,7 @@ import math
 from pathlib import Path
 
 from .errors import InputError
-from .geometry import triangulate_polygon
+from .geometry import MAX_COORDINATE, triangulate_polygon
 from .radiance import Primitive, RadFile
 
 log = logging.getLogger("lpy_light")
@@ -95,6 +95,9 @@ def parse_obj(text: str, name: str = "<string>") -> RadFile:
                                  name, number) from None
             if not all(math.isfinite(c) for c in xyz):
                 raise InputError("vertex coordinate is not finite: %s" % " ".join(args[:3]), name, number)
+            if max(abs(c) for c in xyz) > MAX_COORDINATE:
+                raise InputError("vertex coordinate %g is beyond ±%g scene units (the tracer works in single "
+                                 "precision); is the unit right?" % (max(xyz, key=abs), MAX_COORDINATE), name, number)
             vertices.append(xyz)
         elif key == "f":
             if len(args) < 3:

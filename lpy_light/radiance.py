@@ -230,9 +230,9 @@ def parse_rad(text: str, name: str = "<string>") -> RadFile:
             value, line = tokens[i + 1]
             i += 2
             scale = float(value) if _REAL.fullmatch(value) else math.nan
-            if not (math.isfinite(scale) and scale > 0):
-                raise InputError("scale_factor must be a positive number (file units per metre: 1000 for mm, "
-                                 "100 for cm), got %r" % value, name, line)
+            if not 1e-6 <= scale <= 1e9:      # NaN too
+                raise InputError("scale_factor must be a positive number, 1e-6 to 1e9 (file units per metre: "
+                                 "1000 for mm, 100 for cm), got %r" % value, name, line)
             if prims.scale_factor is not None:
                 raise InputError("scale_factor given twice (first at line %d)" % prims.scale_line, name, line)
             if prims:

@@ -175,7 +175,7 @@ def _is_number(x) -> bool:
 
 
 #: coordinates beyond this (in scene units) are refused: Embree traces in single precision
-MAX_COORDINATE = 1e12
+MAX_COORDINATE = geo.MAX_COORDINATE
 
 
 def load_scene(path, **overrides) -> Chamber:
@@ -343,7 +343,8 @@ def chamber_from_spec(spec: dict, base: Path, name: str = "<scene>", text: str =
                                 physics=physics, unit=unit, solid=solid, remove=remove, flip=flip)
     except InputError as exc:    # the scene as a whole (no light), or a table that misses a band
         raise on_scene_line(exc, getattr(exc, "key", None)) from None
-    _warn_unused_tables(chamber, optical, specularities, spec_files[0] if spec_files else None)
+    has_obj = any(str(part.path).lower().endswith(".obj") for part in geometry_files)
+    _warn_unused_tables(chamber, optical, specularities, spec_files[0] if spec_files else None, has_obj)
     if spectrum is not None:
         if bands is None:
             raise err("'spectrum' (photons -> µmol m-2 s-1 per band) needs 'bands' (e.g. bands = [[655, 665]])",
@@ -441,11 +442,12 @@ def _table_materials(before, part, optical) -> list:
     return out
 
 
-def _warn_unused_tables(chamber, optical, specularities, spec_path):
+def _warn_unused_tables(chamber, optical, specularities, spec_path, has_obj=False):
     """Warn about measured values that no material of the scene uses: a table or specularity whose name
     differs from a material's only in case (names are case-sensitive, as in Radiance), or a table outside
     a ``Plant`` folder (those are for organs) named after no material — the material then silently keeps
-    its ``.rad`` values."""
+    its ``.rad`` values.  With OBJ geometry (materials made from the tables by name) a table no face uses
+    is only a table of the library, and only the first warning is given."""
     names = {m.name for m in chamber.materials}
     lower = {n.lower(): n for n in names}
 
@@ -456,7 +458,8 @@ def _warn_unused_tables(chamber, optical, specularities, spec_path):
     for kind, tables in ((("reflectance", optical.reflectance), ("transmittance", optical.transmittance))
                          if optical is not None else ()):
         for name, table in tables.items():
-            if name not in names and (name.lower() in lower or "Plant" not in Path(table.path).parts):
+            if name not in names and (name.lower() in lower or ("Plant" not in Path(table.path).parts
+                                                                and not has_obj)):
                 log.warning("%s: no material %r in the scene uses this %s table%s", table.path, name, kind, hint(name))
     for name in specularities or {}:
         if name not in names and name.lower() in lower:
