@@ -10,15 +10,20 @@ it is the same geometry but for three things:
   x = 50 and x = 2350 mm); the OBJ keeps only the x = 2350 pair (photon_mapping keyed shapes by name);
 * the four lamps ``lamp2xStr`` — zero-area strips in the OBJ; they come from ``obj/lamps.rad``.
 
-Three runs of ``--estimator nee`` (independent seeds) are compared with ``angers``:
+Each configuration runs ``--batches`` independent seeds of ``--nee`` photons, against ``angers`` run the
+same way:
 
 * ``as-is``: ``angers-obj`` as shipped;
-* ``same geometry``: ``angers-obj`` with ``anchor`` removed and the two x = 50 walls added back.
+* ``anchor only``: the two lost walls restored (``anchor`` is the one difference left);
+* ``walls only``: ``anchor`` removed (the lost walls are the one difference left);
+* ``same geometry``: both.
 
-Prints, per comparison: the mean of (OBJ − RAD)/RAD over the sensors with its σ, the rms and largest
-|z| (z = Δ / √(σ_obj² + σ_rad²)), and how many sensors have |z| > 4.
+Prints, per configuration: the total over the sensors, (OBJ − RAD)/RAD, with its σ from the spread of
+the batches (the sensors of one run are correlated: the σ of a mean over them is not the σ of one sensor
+over √240), the rms and largest per-sensor |z| (z = Δ / √(σ_obj² + σ_rad²)), how many sensors have
+|z| > 4, and the sensors with |z| > 3.
 
-    python benchmarks/obj_vs_rad.py [--photons 2e6]
+    python benchmarks/obj_vs_rad.py [--photons 1e7] [--batches 5]
 """
 from __future__ import annotations
 
@@ -53,19 +58,19 @@ def missing_walls_rad() -> str:
     return out
 
 
-def obj_scene(folder: Path, same_geometry: bool) -> Path:
-    """A scene file for the OBJ chamber (as shipped, or with the .rad's geometry) in ``folder``."""
+def obj_scene(folder: Path, restore_walls: bool, remove_anchor: bool) -> Path:
+    """A scene file for the OBJ chamber in ``folder``: as shipped, or with the lost walls restored and/or
+    ``anchor`` removed."""
     geometry = ['"%s"' % (ANGERS / "obj" / "lamps.rad")]
-    extra = ""
-    if same_geometry:
+    if restore_walls:
         (folder / "missing.rad").write_text(missing_walls_rad())
         geometry.append('"missing.rad"')
-        extra = 'remove = ["anchor"]\n'
     geometry.append('"%s"' % (ANGERS / "obj" / "testChamber.obj"))
     text = ("geometry = [%s]\nsensors = \"%s\"\nunit = \"mm\"\noptical = \"%s\"\nspecularities = \"%s\"\n"
             "bands = [[655, 665]]\n%s" % (", ".join(geometry), ANGERS / "sensors" / "captors_expe1.csv",
-                                          ANGERS / "optical", ANGERS / "optical" / "Specularities.xlsx", extra))
-    path = folder / ("same.toml" if same_geometry else "asis.toml")
+                                          ANGERS / "optical", ANGERS / "optical" / "Specularities.xlsx",
+                                          'remove = ["anchor"]\n' if remove_anchor else ""))
+    path = folder / ("obj-%d%d.toml" % (restore_walls, remove_anchor))
     path.write_text(text)
     return path
 
@@ -77,29 +82,48 @@ def run(path, photons, seed):
     return photons_[:, 0], std[:, 0]
 
 
-def compare(a, sa, b, sb):
-    """Figures of (a − b) for two independent runs: mean relative difference and its σ, rms |z|, max |z|."""
+def batches(path, photons, k, seed):
+    """``k`` independent runs of ``photons``: (k, S) photons per sensor and their σ."""
+    runs = [run(path, photons, seed + i) for i in range(k)]
+    return np.array([r[0] for r in runs]), np.array([r[1] for r in runs])
+
+
+def compare(obj, obj_std, rad, rad_std):
+    """Figures of OBJ against RAD from batches (k, S) of each, the batches independent: the relative difference
+    of the sensors' total and its σ (from the spread of the k batch pairs), per-sensor z of the batch means."""
+    k = len(obj)
+    a, b = obj.mean(axis=0), rad.mean(axis=0)
+    sa, sb = np.sqrt((obj_std ** 2).sum(axis=0)) / k, np.sqrt((rad_std ** 2).sum(axis=0)) / k
     z = (a - b) / np.sqrt(sa ** 2 + sb ** 2)
-    rel = (a - b) / b
-    rel_std = np.sqrt((sa / b) ** 2 + (a * sb / b ** 2) ** 2)
-    mean, mean_std = rel.mean(), np.sqrt((rel_std ** 2).sum()) / len(rel)
-    return {"mean_rel": mean, "mean_rel_std": mean_std, "rms_z": float(np.sqrt(np.mean(z ** 2))),
-            "max_abs_z": float(np.abs(z).max()), "n_over_4": int((np.abs(z) > 4).sum()), "z": z, "rel": rel}
+    ratio = obj.sum(axis=1) / rad.sum(axis=1) - 1          # one value per batch pair
+    return {"total_rel": float(ratio.mean()), "total_rel_std": float(ratio.std(ddof=1) / np.sqrt(k)),
+            "rms_z": float(np.sqrt(np.mean(z ** 2))), "max_abs_z": float(np.abs(z).max()),
+            "n_over_4": int((np.abs(z) > 4).sum()), "z": z}
+
+
+CONFIGS = (("as-is", False, False), ("anchor only", True, False), ("walls only", False, True),
+           ("same geometry", True, True))
 
 
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--photons", type=float, default=2e6)
+    parser.add_argument("--photons", type=float, default=1e7, help="photons per configuration (all batches)")
+    parser.add_argument("--batches", type=int, default=5)
     args = parser.parse_args(argv)
-    n = int(args.photons)
-    rad, rad_std = run(ANGERS / "angers.toml", n, seed=1)
+    k = args.batches
+    n = int(args.photons) // k
+    centers = load_scene(ANGERS / "angers.toml").sensors.center
+    rad, rad_std = batches(ANGERS / "angers.toml", n, k, seed=100)
     with tempfile.TemporaryDirectory() as tmp:
-        for label, same, seed in (("as-is", False, 2), ("same geometry", True, 3)):
-            obj, obj_std = run(obj_scene(Path(tmp), same), n, seed=seed)
+        for i, (label, walls, anchor) in enumerate(CONFIGS):
+            obj, obj_std = batches(obj_scene(Path(tmp), walls, anchor), n, k, seed=200 + 100 * i)
             c = compare(obj, obj_std, rad, rad_std)
-            print("%-14s %d photons: mean (OBJ - RAD)/RAD = %+.3f %% ± %.3f %%, rms z = %.2f, max |z| = %.2f, "
-                  "%d of %d sensors with |z| > 4" % (label, n, 100 * c["mean_rel"], 100 * c["mean_rel_std"],
-                                                      c["rms_z"], c["max_abs_z"], c["n_over_4"], len(obj)))
+            far = np.flatnonzero(np.abs(c["z"]) > 3)
+            print("%-14s %d x %d photons: sensors' total (OBJ - RAD)/RAD = %+.3f %% ± %.3f %%, rms z = %.2f, "
+                  "max |z| = %.2f, %d of %d sensors with |z| > 4%s"
+                  % (label, k, n, 100 * c["total_rel"], 100 * c["total_rel_std"], c["rms_z"], c["max_abs_z"],
+                     c["n_over_4"], len(c["z"]), "".join("; z = %+.1f at (%g, %g, %g)" % ((c["z"][s],) + tuple(centers[s]))
+                                                        for s in far)))
     return 0
 
 
