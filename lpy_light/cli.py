@@ -12,6 +12,7 @@ SCENE may be a path or the name of a built-in scene (``angers``,
 from __future__ import annotations
 
 import argparse
+import contextlib
 import logging
 import os
 import signal
@@ -99,6 +100,11 @@ def _parser() -> argparse.ArgumentParser:
                         "growing), nee (weighted + next-event tallies on sensors and receivers: far fewer "
                         "photons for the same precision) or analog (SEC2's counting: one photon, one event)")
     r.add_argument("--quiet", action="store_true", help="no progress lines")
+    r.add_argument("--dask", metavar="ADDRESS", default=None,
+                   help="trace the photon chunks on a Dask cluster, with the same numbers as here: 'local' or "
+                        "'local:N' (N worker processes on this machine, on 127.0.0.1 only; --threads per worker), "
+                        "a scheduler's address (tls://host:8786) or scheduler file (.json); "
+                        "needs pip install 'lpy-light[dask]' (docs/scaling.md)")
     r.add_argument("--nee-picks", type=int, default=1, metavar="K",
                    help="with --estimator nee: targets per next event, drawn at random (default 1; 0 = all)")
     r.add_argument("--nee-images", type=float, default=0.5, metavar="K",
@@ -157,8 +163,21 @@ def cmd_run(args) -> int:
         raise InputError("--nee-zones must be in 0..64")
     kscene.nee_zones = args.nee_zones
     kscene.nee_control = not args.no_nee_control
-    if args.estimator == "nee":
-        kscene.prune_next_events(threads=args.threads)
+    with contextlib.ExitStack() as cluster_scope:
+        executor = None
+        if args.dask is not None:
+            from . import cluster
+            client = cluster_scope.enter_context(cluster.dask_client(args.dask, threads=args.threads))
+            executor = cluster.DaskChunks(client)
+        if args.estimator == "nee":
+            kscene.prune_next_events(threads=args.threads if executor is None else None)
+        return _trace_and_write(args, path, chamber, kscene, measured, ref, ref_band, executor)
+
+
+def _trace_and_write(args, path, chamber, kscene, measured, ref, ref_band, executor=None) -> int:
+    from . import simulate, units
+    from .results import write_run
+
     stop, tracing = threading.Event(), [True]
 
     def on_term(signum, frame):
@@ -178,7 +197,7 @@ def cmd_run(args) -> int:
                   file=sys.stderr)
         result = simulate.run(kscene, args.photons, seed=args.seed, threads=args.threads,
                               progress=None if args.quiet else simulate.progress_printer(),
-                              stop=stop.is_set, precision=args.precision)
+                              stop=stop.is_set, precision=args.precision, executor=executor)
     finally:
         tracing[0] = False
     norm = None
@@ -212,8 +231,9 @@ def cmd_run(args) -> int:
                                   args.precision, "reached" if summary.get("precision_reached") else "NOT reached")),
               file=sys.stderr)
     if not args.quiet:
-        print("lpy-light: %d photons in %.2f s (%.3g photons/s)%s; results in %s"
-              % (result.photons, result.seconds, summary["photons_per_second"] or 0,
+        where = "" if executor is None else " on %d Dask worker(s) at %s" % (executor.workers, executor.address)
+        print("lpy-light: %d photons in %.2f s (%.3g photons/s)%s%s; results in %s"
+              % (result.photons, result.seconds, summary["photons_per_second"] or 0, where,
                  " — PARTIAL (interrupted)" if result.partial else "", args.out), file=sys.stderr)
     return 130 if result.partial else 0
 

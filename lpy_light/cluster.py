@@ -106,6 +106,26 @@ def insecure_warning(address: str) -> str | None:
             "code on its workers, and the scene travels unencrypted; see docs/scaling.md for a TLS cluster" % address)
 
 
+def _probe(address: str):
+    """Fail at once, naming ``address``, when it is malformed, its host unknown or its port closed
+    (Dask itself would retry for ``CONNECT_TIMEOUT`` seconds)."""
+    import socket
+    from distributed.comm import parse_address, parse_host_port
+
+    try:
+        protocol, location = parse_address(address)
+        host, port = parse_host_port(location)
+    except (ValueError, TypeError) as exc:
+        raise InputError("--dask %s is not a Dask scheduler address (tls://host:8786, host:8786, local, local:N, "
+                         "or a scheduler .json file): %s" % (address, exc)) from None
+    if protocol not in ("tcp", "tls") or not port:
+        return
+    try:
+        socket.create_connection((host, port), timeout=CONNECT_TIMEOUT).close()
+    except OSError as exc:
+        raise InputError("cannot reach the Dask scheduler at %s: %s" % (address, exc.strerror or exc)) from None
+
+
 # ------------------------------------------------------------------------------------------
 # Client and cluster
 @contextlib.contextmanager
@@ -119,6 +139,10 @@ def dask_client(address: str, threads: int | None = None):
     naming the address when it cannot be reached.
     """
     distributed = _require_distributed()
+    for name in ("distributed", "distributed.client", "distributed.scheduler", "distributed.nanny",
+                 "distributed.worker", "tornado"):
+        # Dask's own news (workers starting, connections) at INFO would pass for lpy-light's warnings
+        logging.getLogger(name).setLevel(logging.WARNING)
     n = local_workers(address)
     if n is not None:
         from .simulate import default_threads
@@ -158,6 +182,7 @@ def dask_client(address: str, threads: int | None = None):
             raise InputError("not a Dask scheduler file (a JSON object with an 'address')", address) from None
     else:
         kwargs["address"] = address
+    _probe(label)
     warning = insecure_warning(label)
     if warning:
         log.warning("%s", warning)
