@@ -131,7 +131,28 @@ def _parser() -> argparse.ArgumentParser:
                    help="band compared with the reference (default 655-665 when the scene has it, else the first)")
     sub.add_parser("scenes", help="list the built-in scenes")
     _grow_parser(sub)
+    _sweep_parser(sub)
     return p
+
+
+def _sweep_parser(sub):
+    s = sub.add_parser("sweep", allow_abbrev=False,
+                       help="many runs as one command: a grid of an .lpy model's externs (grow) or of scenes (run); "
+                            "resumable; on this machine or on Dask",
+                       description="Every combination of the inputs and the --set values is one run, written to "
+                                   "OUT/NAME/ with sweep.csv indexing them; the same command again skips the "
+                                   "finished runs. Options the sweep does not know (--steps 30, --photons 1e6) go "
+                                   "to every run: put them after the inputs.")
+    s.add_argument("inputs", nargs="+", help=".lpy models (each run: lpy-light grow) or scenes (lpy-light run)")
+    s.add_argument("--set", action="append", default=[], metavar="NAME=VALUES",
+                   help="a grid axis: NAME=V1,V2,... or NAME=A..B (whole numbers); a model's extern "
+                        "(--set PAR_MIN=20,40,80) or a run option (--set seed=1..4); repeatable")
+    s.add_argument("--out", required=True, help="output folder: one sub-folder per run, and sweep.csv")
+    s.add_argument("--dask", metavar="ADDRESS", default=None,
+                   help="run on a Dask cluster: local[:N], tls://host:8786, or a scheduler file (see run --dask)")
+    s.add_argument("--workers", type=int, default=None,
+                   help="runs at once on this machine (default: one per core; each run has --threads 1 unless given)")
+    s.add_argument("--quiet", action="store_true", help="no line per finished run")
 
 
 def cmd_run(args) -> int:
@@ -347,7 +368,24 @@ def _grow_parser(sub):
     g.add_argument("--photons", type=_count, default=None, help="photons per step (default: the model's)")
     g.add_argument("--threads", type=int, default=None, help="threads (default: all cores)")
     g.add_argument("--out", required=True, help="output folder")
+    g.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
+                   help="set an extern of the model, e.g. --set PAR_MIN=20 (a Python literal, else text); repeatable")
     g.add_argument("--quiet", action="store_true", help="no progress lines")
+
+
+def extern_values(sets) -> dict:
+    """``["PAR_MIN=20", "SCENE=angers"]`` → ``{"PAR_MIN": 20, "SCENE": "angers"}``: Python literals, else text."""
+    import ast
+    out = {}
+    for text in sets:
+        name, eq, value = text.partition("=")
+        if not eq or not name.strip().isidentifier():
+            raise InputError("--set %s: expected NAME=VALUE (an extern of the model)" % text)
+        try:
+            out[name.strip()] = ast.literal_eval(value.strip())
+        except (ValueError, SyntaxError):
+            out[name.strip()] = value.strip()
+    return out
 
 
 def cmd_grow(args) -> int:
@@ -363,6 +401,7 @@ def cmd_grow(args) -> int:
     variables = {"STEPS": args.steps}
     if args.photons:
         variables["PHOTONS"] = args.photons
+    variables.update(extern_values(args.set))
     try:
         lsys = lpy.Lsystem(str(path), variables)
     except Exception as exc:    # L-Py reports syntax errors as generic exceptions
@@ -449,8 +488,12 @@ def _out_in_argv(argv) -> str | None:
 def main(argv=None) -> int:
     logging.basicConfig(format="lpy-light: warning: %(message)s", level=logging.WARNING)
     argv = list(sys.argv[1:] if argv is None else argv)
+    passthrough = []
     try:
-        args = _parser().parse_args(argv)
+        if argv[:1] == ["sweep"]:       # options the sweep does not know go to every run
+            args, passthrough = _parser().parse_known_args(argv)
+        else:
+            args = _parser().parse_args(argv)
     except SystemExit as exc:
         if exc.code == 2 and argv[:1] == ["run"]:     # refused by argparse: --out holds no results either
             _remove_stale_results(_out_in_argv(argv[1:]))
@@ -465,6 +508,9 @@ def main(argv=None) -> int:
             return cmd_run(args)
         if args.command == "grow":
             return cmd_grow(args)
+        if args.command == "sweep":
+            from .sweep import cmd_sweep
+            return cmd_sweep(args, passthrough)
     except LpyLightError as exc:
         print("lpy-light: error: %s" % exc, file=sys.stderr)
         _remove_stale_results(getattr(args, "out", None))
