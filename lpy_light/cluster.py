@@ -49,6 +49,10 @@ log = logging.getLogger("lpy_light")
 CONNECT_TIMEOUT = 20.0
 #: scenes (with their recipes) a worker keeps built, the latest used
 KEEP_SCENES = 4
+#: a run's chunks are grouped into tasks so that each worker thread gets at least this many tasks ...
+TASKS_PER_THREAD = 4
+#: ... of at most this many chunks (16 x 32768 photons: ~0.3-2 s of tracing on the Angers chamber)
+MAX_CHUNKS_PER_TASK = 16
 _LOCAL = re.compile(r"local(?::(\d+))?$")
 
 
@@ -133,7 +137,7 @@ def dask_client(address: str, threads: int | None = None):
     """A ``distributed.Client`` for ``--dask ADDRESS``, closed (with its local cluster) on exit.
 
     ``local[:N]``: a ``LocalCluster`` of N worker processes with ``threads`` threads each (default:
-    the cores shared out), every socket on 127.0.0.1 and no dashboard.  Otherwise the scheduler at
+    the cores shared out), every socket on 127.0.0.1 (its HTTP server too, on a free port).  Otherwise the scheduler at
     ``address`` (or in the scheduler file ``address``); ``threads`` must then be None (workers
     have their own: ``dask worker --nthreads``).  Raises :class:`~lpy_light.errors.InputError`
     naming the address when it cannot be reached.
@@ -154,7 +158,7 @@ def dask_client(address: str, threads: int | None = None):
             signal.signal(signal.SIGINT, signal.SIG_IGN)
         try:
             cluster = distributed.LocalCluster(n_workers=n, threads_per_worker=per_worker, processes=True,
-                                               host="127.0.0.1", dashboard_address=None,
+                                               host="127.0.0.1", dashboard_address="127.0.0.1:0",
                                                silence_logs=logging.ERROR)
         finally:
             if previous is not None:
@@ -245,9 +249,11 @@ def worker_scene(digest: str):
     return kscene
 
 
-def trace_chunk(digest: str, seed: int, first: int, count: int):
-    """A chunk task: photons ``first .. first + count`` of the scene ``digest`` -> kscene.trace's tallies."""
-    return worker_scene(digest).trace(seed, first, count)
+def trace_chunks(digest: str, seed: int, chunks) -> list:
+    """A task: each chunk ``(first, count)`` of the scene ``digest`` traced alone -> [kscene.trace's tallies]
+    (summed by the client one chunk at a time, in chunk order, as a local run sums them)."""
+    kscene = worker_scene(digest)
+    return [kscene.trace(seed, first, count) for first, count in chunks]
 
 
 def build_seconds() -> list:
@@ -260,12 +266,19 @@ class DaskChunks:
     """:func:`lpy_light.simulate.run`'s executor on a Dask cluster (see :class:`lpy_light.simulate.LocalThreads`).
 
     ``client``: a ``distributed.Client`` (:func:`dask_client`).  Its ``threads`` (the workers'
-    threads together, at ``open``) is how many chunks run at once; :func:`simulate.run` keeps
-    twice that many submitted and sums them in chunk order.
+    threads together, at ``open``) is how many tasks run at once; :func:`simulate.run` keeps twice
+    that many submitted and sums their chunks one by one in chunk order.
+
+    ``chunks_per_task``: consecutive chunks in one task, each traced and returned alone (so the
+    numbers do not depend on it).  Default: as many as leave every thread :data:`TASKS_PER_THREAD`
+    tasks, at most :data:`MAX_CHUNKS_PER_TASK` -- fewer, longer tasks keep the scheduler's cost
+    per task (~1 ms) small beside the tracing (docs/scaling.md).
     """
 
-    def __init__(self, client):
+    def __init__(self, client, chunks_per_task: int | None = None):
         self.client = client
+        self.fixed_chunks_per_task = chunks_per_task
+        self.chunks_per_task = chunks_per_task or 1
         self.address = getattr(client, "lpy_address", None) or client.scheduler.address
         self.threads = max(1, self._threads())
         self.digest = self._plugin = None
@@ -284,12 +297,15 @@ class DaskChunks:
         if not threads:
             log.warning("the Dask scheduler at %s has no workers yet: the chunks wait for them", self.address)
         self.threads = max(1, threads)
+        self.chunks_per_task = self.fixed_chunks_per_task or \
+            max(1, min(MAX_CHUNKS_PER_TASK, n_chunks // (TASKS_PER_THREAD * self.threads)))
         return self.threads
 
-    def submit(self, seed: int, first: int, count: int):
+    def submit(self, seed: int, chunks):
         # the key names the computation (scene, seed, photons): the same key is the same tallies
-        return self.client.submit(trace_chunk, self.digest, seed, first, count,
-                                  key="lpy-light-chunk-%s-%d-%d-%d" % (self.digest, seed, first, count))
+        first, last = chunks[0][0], chunks[-1][0] + chunks[-1][1]
+        return self.client.submit(trace_chunks, self.digest, seed, list(chunks),
+                                  key="lpy-light-chunks-%s-%d-%d-%d" % (self.digest, seed, first, last))
 
     def close(self):
         if self._plugin is not None:
@@ -299,4 +315,4 @@ class DaskChunks:
 
     def describe(self) -> dict:
         return {"dask": {"scheduler": self.address, "workers": self.workers, "threads": self.threads,
-                         "scene": self.digest}}
+                         "chunks_per_task": self.chunks_per_task, "scene": self.digest}}

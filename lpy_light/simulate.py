@@ -527,9 +527,11 @@ class LocalThreads:
     Its methods:
 
     * ``open(kscene, n_chunks) -> slots``: get ready to trace ``kscene``; ``slots`` is how many
-      chunks it traces at once (:func:`run` keeps ``2 · slots`` submitted);
-    * ``submit(seed, first, count) -> future``: ``kscene.trace(seed, first, count)`` somewhere,
-      a future with ``result()`` and ``cancel()`` (:func:`run` cancels those it will not sum);
+      tasks it runs at once (:func:`run` keeps ``2 · slots`` submitted);
+    * ``chunks_per_task`` (read after ``open``): consecutive chunks in one task (1 here);
+    * ``submit(seed, chunks) -> future``: ``[kscene.trace(seed, first, count) for first, count in
+      chunks]`` somewhere, a future with ``result()`` and ``cancel()`` (:func:`run` sums each chunk's
+      tallies alone, in chunk order, and cancels the tasks it will not sum);
     * ``close()``: release what ``open`` took;
     * ``describe() -> dict``: where the run was traced, for ``summary.json`` (empty here).
 
@@ -550,8 +552,11 @@ class LocalThreads:
         self._pool = ThreadPoolExecutor(max_workers=self.threads)
         return self.threads
 
-    def submit(self, seed: int, first: int, count: int):
-        return self._pool.submit(self._kscene.trace, seed, first, count)
+    chunks_per_task = 1
+
+    def submit(self, seed: int, chunks):
+        (first, count), = chunks
+        return self._pool.submit(lambda: [self._kscene.trace(seed, first, count)])
 
     def close(self):
         if self._pool is not None:
@@ -625,34 +630,37 @@ def run(kscene: KernelScene, photons: int, seed: int = 1, threads: int | None = 
     try:
         try:
             slots = executor.open(kscene, n_chunks)       # after nee_batch: an executor may copy the scene
-            window = 2 * slots
+            per_task = max(1, int(getattr(executor, "chunks_per_task", 1)))
+            window = 2 * slots                                # tasks submitted ahead
             next_chunk = 0
-            while next_chunk < n_chunks or pending:
+            ended = False
+            while not ended and (next_chunk < n_chunks or pending):
                 while next_chunk < n_chunks and len(pending) < window:
-                    first, count = chunk(next_chunk)
-                    pending.append((count, executor.submit(seed, first, count)))
-                    next_chunk += 1
-                count, fut = pending[0]
-                part = fut.result()
-                state = ([a + p for a, p in zip(state[0], part)], state[1] + count)
+                    group = [chunk(c) for c in range(next_chunk, min(next_chunk + per_task, n_chunks))]
+                    pending.append((group, executor.submit(seed, group)))
+                    next_chunk += len(group)
+                group, fut = pending[0]
+                parts = fut.result()
                 pending.pop(0)
-                acc, done = state
-                worst = None         # with ``precision``: the largest relative σ so far
-                if precision is not None and done >= min(min_photons, photons) and done < photons:
-                    rel = relative_sigma(acc[0], acc[1], done, precision_rows,
-                                         effective_samples(done, acc[2], kscene.n_rows, kscene.n_sensors))
-                    worst = float(rel.max()) if rel.size else float("inf")   # nothing tallied yet
-                if progress:
-                    # with ``precision``, the photons it should take (σ ∝ 1/√N), capped at ``photons``
-                    total = photons if not worst or not np.isfinite(worst) else \
-                        int(min(photons, max(done, done * (worst / precision) ** 2)))
-                    progress(done, total, time.perf_counter() - start)
-                if stop is not None and stop() and done < photons:
-                    partial = True
-                    break
-                if worst is not None and worst <= precision:
-                    reached = True
-                    break
+                for (first, count), part in zip(group, parts):     # one chunk at a time, in chunk order
+                    state = ([a + p for a, p in zip(state[0], part)], state[1] + count)
+                    acc, done = state
+                    worst = None         # with ``precision``: the largest relative σ so far
+                    if precision is not None and done >= min(min_photons, photons) and done < photons:
+                        rel = relative_sigma(acc[0], acc[1], done, precision_rows,
+                                             effective_samples(done, acc[2], kscene.n_rows, kscene.n_sensors))
+                        worst = float(rel.max()) if rel.size else float("inf")   # nothing tallied yet
+                    if progress:
+                        # with ``precision``, the photons it should take (σ ∝ 1/√N), capped at ``photons``
+                        total = photons if not worst or not np.isfinite(worst) else \
+                            int(min(photons, max(done, done * (worst / precision) ** 2)))
+                        progress(done, total, time.perf_counter() - start)
+                    if stop is not None and stop() and done < photons:
+                        partial = ended = True
+                        break
+                    if worst is not None and worst <= precision:
+                        reached = ended = True
+                        break
         except KeyboardInterrupt:
             partial, interrupted = state[1] < photons, True
         finally:
