@@ -176,8 +176,11 @@ def dask_client(address: str, threads: int | None = None):
     kwargs = {}
     label = address
     if address.endswith(".json"):
+        waited = time.monotonic() + CONNECT_TIMEOUT
+        while not Path(address).is_file() and time.monotonic() < waited:   # a scheduler just started
+            time.sleep(0.2)
         if not Path(address).is_file():
-            raise InputError("Dask scheduler file not found", address)
+            raise InputError("Dask scheduler file not found (waited %g s for it)" % CONNECT_TIMEOUT, address)
         kwargs["scheduler_file"] = address
         try:
             import json
