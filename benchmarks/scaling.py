@@ -80,24 +80,23 @@ def rates(args, out):
                 out["rates"]["%s_%d" % (est, workers)] = {"local": [lb, lm], "dask": [db, dm], "chunks_per_task": per_task}
 
 
+def _timed_trace(digest, n, reps, repeats):
+    """On a worker: the best of ``repeats`` mean times of ``reps`` chunks of ``n`` photons (s)."""
+    kscene = cluster.worker_scene(digest)
+    best = float("inf")
+    for _ in range(repeats):
+        start = time.perf_counter()
+        for k in range(reps):
+            kscene.trace(1, k * n, n)
+        best = min(best, (time.perf_counter() - start) / reps)
+    return best
+
+
 def task_costs(args, out):
     """Per-task overhead on 1 worker of 1 thread, chunk efficiency, first build, merge per chunk."""
     print("2. the cost of a task (1 worker, 1 thread, %s weighted)" % args.scene)
     ks = kernel_scene(args.scene, "weighted")
     sizes = [1, 2048, 8192, CHUNK, 4 * CHUNK]
-    trace = {}
-    for n in sizes:                                     # tracing alone, in this process, 1 thread
-        reps = max(3, min(200, int(2e6 // max(n, 1))))
-        ks.trace(1, 0, n)
-        t = []
-        for r in range(args.repeats):
-            start = time.perf_counter()
-            for k in range(reps):
-                ks.trace(1, k * n, n)
-            t.append((time.perf_counter() - start) / reps)
-        trace[n] = min(t)
-    t_photon = trace[CHUNK] / CHUNK
-    out["trace_seconds"] = trace
     # a fresh cluster: the first task pays the worker's imports and the scene's build
     start = time.perf_counter()
     with cluster.dask_client("local:1", threads=1) as client:
@@ -111,6 +110,11 @@ def task_costs(args, out):
         ex.submit(1, [(0, 1)]).result()
         first = time.perf_counter() - start
         build = [s for builds in client.run(cluster.build_seconds).values() for _, s in builds]
+        trace = {}
+        for n in sizes:                                 # tracing alone, on the worker, one chunk after another
+            reps = max(3, min(200, int(2e6 // max(n, 1))))
+            trace[n] = client.submit(_timed_trace, ex.digest, n, reps, args.repeats, pure=False).result()
+        t_photon = trace[CHUNK] / CHUNK
         wall = {}
         for n in sizes:
             K = max(20, min(300, int(4e6 // max(n, 1))))
@@ -128,14 +132,16 @@ def task_costs(args, out):
         warm = wall[1]
         ex.close()
     overhead = wall[1] - trace[1]
+    out["trace_seconds"] = trace
     print("   cluster start %.2f s; scene registered on the workers in %.3f s; Embree build on a worker %.3f s; "
           "first task on a fresh worker %.2f s (its imports), a warm 1-photon task %.2f ms"
           % (up, registered, max(build), first, 1e3 * warm))
     print("   per-task overhead (1-photon tasks, wall per task minus tracing): %.2f ms; tracing %.3f µs/photon"
           % (1e3 * overhead, 1e6 * t_photon))
     for n in sizes[1:]:
-        print("   chunk %7d photons: tracing %.2f ms, wall per task %.2f ms, efficiency %.1f %%"
-              % (n, 1e3 * trace[n], 1e3 * wall[n], 100 * trace[n] / wall[n]))
+        print("   chunk %7d photons: tracing %.2f ms (on the worker), wall per task %.2f ms, efficiency %.1f %% "
+              "(%.1f %% from the overhead)" % (n, 1e3 * trace[n], 1e3 * wall[n], 100 * trace[n] / wall[n],
+                                              100 * trace[n] / (trace[n] + overhead)))
     smallest = overhead / (0.05 * t_photon)
     print("   smallest chunk with overhead < 5 %%: %.3g photons (= overhead / (0.05 x tracing time per photon)); "
           "CHUNK = %d" % (smallest, CHUNK))

@@ -100,6 +100,15 @@ def grid(sets) -> list[dict]:
     return [dict(zip(names, combo)) for combo in itertools.product(*[v for _, v in axes])]
 
 
+def model_externs(path) -> list[str]:
+    """Names an ``.lpy`` model declares with ``extern(NAME=default, ...)`` (what ``grow --set`` may set)."""
+    text = Path(path).read_text(errors="replace")
+    names = []
+    for args in re.findall(r"^\s*extern\s*\((.*)\)", text, flags=re.M):
+        names += re.findall(r"(?:^|,)\s*([A-Za-z_]\w*)\s*=", args)
+    return list(dict.fromkeys(names))
+
+
 def _folder_name(parts: list[str]) -> str:
     name = ",".join(parts) or "run"
     safe = _NAME_CHARS.sub("_", name)
@@ -140,6 +149,13 @@ def tasks_for(inputs, sets, passthrough=(), threads: int = 1) -> list[Task]:
     if not any(a == "--threads" or a.startswith("--threads=") for a in passthrough):
         passthrough += ["--threads", str(threads)]
     combos = grid(sets)
+    if kind == "grow" and combos:
+        for path in resolved:
+            declared = model_externs(path)
+            unknown = [name for name in combos[0] if name not in declared]
+            if unknown:
+                raise InputError("--set %s: the model declares no such extern (it has %s)"
+                                 % (", ".join(unknown), ", ".join(declared) or "none"), path)
     tasks = []
     stems = [Path(i).stem for i in inputs]
     for i, (path, stem) in enumerate(zip(resolved, stems)):

@@ -8,11 +8,13 @@ twice or lost after a worker died, a sweep that re-runs or forgets a finished ru
 """
 from __future__ import annotations
 
+import importlib.util
 import json
 import os
 import signal
 import socket
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -166,7 +168,10 @@ def test_grid_of_values():
             sweep.parse_set(bad)
     with pytest.raises(InputError):
         sweep.grid(["A=1", "A=2"])
-    tasks = sweep.tasks_for(["lsystems/rose.lpy"], ["PAR_MIN=20,40", "SEED=1..2"], ["--steps", "3"])
+    rose = str(Path(__file__).resolve().parents[1] / "lsystems" / "rose.lpy")
+    with pytest.raises(InputError, match="declares no such extern"):      # a typo would set nothing
+        sweep.tasks_for([rose], ["SEEDS=1..2"], ["--steps", "3"])
+    tasks = sweep.tasks_for([rose], ["PAR_MIN=20,40", "SEED=1..2"], ["--steps", "3"])
     assert [t.name for t in tasks] == ["PAR_MIN=20,SEED=1", "PAR_MIN=20,SEED=2", "PAR_MIN=40,SEED=1",
                                        "PAR_MIN=40,SEED=2"]
     argv = tasks[1].argv
@@ -229,3 +234,22 @@ def test_sweep_on_dask_survives_a_killed_worker(client, tmp_path):
                      "--out", str(tmp_path / "direct")]) == 0
     assert _sensors(out / "seed=5") == _sensors(tmp_path / "direct")
     client.wait_for_workers(2, timeout=60)
+
+
+HAVE_LPY = importlib.util.find_spec("openalea") is not None and importlib.util.find_spec("openalea.lpy") is not None
+
+
+@pytest.mark.lpy
+@pytest.mark.skipif(not HAVE_LPY, reason="L-Py/PlantGL are not importable here")
+def test_sweep_grows_a_grid_of_externs(tmp_path):
+    """rose.lpy over SEED=1..2: one folder per seed, organs.csv differing by seed (the extern reached the
+    model: with it ignored, both folders would hold the same numbers), each equal to `grow --set SEED=2`."""
+    rose = str(Path(__file__).resolve().parents[1] / "lsystems" / "rose.lpy")
+    out = tmp_path / "sweep"
+    assert cli.main(["sweep", rose, "--steps", "3", "--photons", "20000", "--set", "SEED=1..2", "--out", str(out),
+                     "--quiet"]) == 0
+    a, b = (out / "SEED=1" / "organs.csv").read_bytes(), (out / "SEED=2" / "organs.csv").read_bytes()
+    assert a != b and a.count(b"\n") == b.count(b"\n") > 1
+    assert cli.main(["grow", rose, "--steps", "3", "--photons", "20000", "--set", "SEED=2", "--threads", "1",
+                     "--quiet", "--out", str(tmp_path / "direct")]) == 0
+    assert (tmp_path / "direct" / "organs.csv").read_bytes() == b
