@@ -156,8 +156,7 @@ def _sweep_parser(sub):
 
 
 def cmd_run(args) -> int:
-    from . import simulate, units
-    from .results import write_run
+    from . import simulate
     from .scene import load_scene
 
     if args.threads is not None and not 1 <= args.threads <= simulate.MAX_THREADS:

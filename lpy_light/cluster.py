@@ -9,8 +9,10 @@ The chamber travels once per worker, not with each chunk: the :class:`~lpy_light
 is pickled (without its Embree scene: its settings, the pruning of next events and the organs come
 as they are here), registered as a worker plugin under its content digest, and every worker —
 also one that joins or restarts during the run — keeps it; a worker builds its Embree scene at its
-first chunk and keeps it for the next ones (:func:`worker_scene`).  A chunk task ships the digest,
-the seed, its first photon index and its photon count, and returns its tallies.
+first chunk and keeps it for the next ones (:func:`worker_scene`).  A task ships the digest, the
+seed and its chunks' (first photon index, photon count) — up to :data:`MAX_CHUNKS_PER_TASK`
+consecutive chunks, to keep the scheduler's cost per task small — and returns each chunk's
+tallies apart, for the client to sum one chunk at a time.
 
 Faults: a worker that dies takes its running chunks with it; the scheduler runs them again on
 another worker (results depend only on seed and photon index, and each chunk's future is summed
@@ -137,9 +139,9 @@ def dask_client(address: str, threads: int | None = None):
     """A ``distributed.Client`` for ``--dask ADDRESS``, closed (with its local cluster) on exit.
 
     ``local[:N]``: a ``LocalCluster`` of N worker processes with ``threads`` threads each (default:
-    the cores shared out), every socket on 127.0.0.1 (its HTTP server too, on a free port).  Otherwise the scheduler at
-    ``address`` (or in the scheduler file ``address``); ``threads`` must then be None (workers
-    have their own: ``dask worker --nthreads``).  Raises :class:`~lpy_light.errors.InputError`
+    the cores shared out), every socket on 127.0.0.1 (its HTTP server too, on a free port).
+    Otherwise the scheduler at ``address`` (or in the scheduler file ``address``); ``threads``
+    must then be None (workers have their own: ``dask worker --nthreads``).  Raises :class:`~lpy_light.errors.InputError`
     naming the address when it cannot be reached.
     """
     distributed = _require_distributed()
