@@ -91,7 +91,7 @@ def test_precision_and_stop_work_across_the_cluster(client):
 
 def test_a_killed_worker_changes_nothing(client, nee_scene):
     """A worker killed (SIGKILL) with chunks running: they run again elsewhere, none counted twice."""
-    photons = 24 * CHUNK
+    photons = 12 * CHUNK
     before = _worker_pids(client)
     killed = []
 
