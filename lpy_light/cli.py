@@ -12,6 +12,7 @@ SCENE may be a path or the name of a built-in scene (``angers``,
 from __future__ import annotations
 
 import argparse
+import contextlib
 import logging
 import math
 import os
@@ -92,6 +93,11 @@ def _parser() -> argparse.ArgumentParser:
                         "own hits, bands share events; for the energy closure per material) or analog (SEC2's "
                         "counting: one photon, one event, raw hit counts)")
     r.add_argument("--quiet", action="store_true", help="no progress lines")
+    r.add_argument("--dask", metavar="ADDRESS", default=None,
+                   help="trace the photon chunks on a Dask cluster, with the same numbers as here: 'local' or "
+                        "'local:N' (N worker processes on this machine, on 127.0.0.1 only; --threads per worker), "
+                        "a scheduler's address (tls://host:8786) or scheduler file (.json); "
+                        "needs pip install 'lpy-light[dask]' (docs/scaling.md)")
     r.add_argument("--nee-picks", type=int, default=1, metavar="K",
                    help="with --estimator nee: targets per next event, drawn at random (default 1; 0 = all)")
     r.add_argument("--nee-images", type=float, default=0.5, metavar="K",
@@ -118,12 +124,32 @@ def _parser() -> argparse.ArgumentParser:
                    help="band compared with the reference (default 655-665 when the scene has it, else the first)")
     sub.add_parser("scenes", help="list the built-in scenes")
     _grow_parser(sub)
+    _sweep_parser(sub)
     return p
 
 
+def _sweep_parser(sub):
+    s = sub.add_parser("sweep", allow_abbrev=False,
+                       help="many runs as one command: a grid of an .lpy model's externs (grow) or of scenes (run); "
+                            "resumable; on this machine or on Dask",
+                       description="Every combination of the inputs and the --set values is one run, written to "
+                                   "OUT/NAME/ with sweep.csv indexing them; the same command again skips the "
+                                   "finished runs. Options the sweep does not know (--steps 30, --photons 1e6) go "
+                                   "to every run: put them after the inputs.")
+    s.add_argument("inputs", nargs="+", help=".lpy models (each run: lpy-light grow) or scenes (lpy-light run)")
+    s.add_argument("--set", action="append", default=[], metavar="NAME=VALUES",
+                   help="a grid axis: NAME=V1,V2,... or NAME=A..B (whole numbers); a model's extern "
+                        "(--set PAR_MIN=20,40,80) or a run option (--set seed=1..4); repeatable")
+    s.add_argument("--out", required=True, help="output folder: one sub-folder per run, and sweep.csv")
+    s.add_argument("--dask", metavar="ADDRESS", default=None,
+                   help="run on a Dask cluster: local[:N], tls://host:8786, or a scheduler file (see run --dask)")
+    s.add_argument("--workers", type=int, default=None,
+                   help="runs at once on this machine (default: one per core; each run has --threads 1 unless given)")
+    s.add_argument("--quiet", action="store_true", help="no line per finished run")
+
+
 def cmd_run(args) -> int:
-    from . import simulate, units
-    from .results import write_run
+    from . import simulate
     from .scene import load_scene
 
     if args.threads is not None and not 1 <= args.threads <= simulate.MAX_THREADS:
@@ -152,8 +178,21 @@ def cmd_run(args) -> int:
         raise InputError("--nee-zones must be in 0..64")
     kscene.nee_zones = args.nee_zones
     kscene.nee_control = not args.no_nee_control
-    if args.estimator == "nee":
-        kscene.prune_next_events(threads=args.threads)
+    with contextlib.ExitStack() as cluster_scope:
+        executor = None
+        if args.dask is not None:
+            from . import cluster
+            client = cluster_scope.enter_context(cluster.dask_client(args.dask, threads=args.threads))
+            executor = cluster.DaskChunks(client)
+        if args.estimator == "nee":
+            kscene.prune_next_events(threads=args.threads if executor is None else None)
+        return _trace_and_write(args, path, chamber, kscene, measured, ref, ref_band, executor)
+
+
+def _trace_and_write(args, path, chamber, kscene, measured, ref, ref_band, executor=None) -> int:
+    from . import simulate, units
+    from .results import write_run
+
     stop, tracing = threading.Event(), [True]
 
     def on_term(signum, frame):
@@ -173,7 +212,7 @@ def cmd_run(args) -> int:
                   file=sys.stderr)
         result = simulate.run(kscene, args.photons, seed=args.seed, threads=args.threads,
                               progress=None if args.quiet else simulate.progress_printer(),
-                              stop=stop.is_set, precision=args.precision)
+                              stop=stop.is_set, precision=args.precision, executor=executor)
     finally:
         tracing[0] = False
     norm = None
@@ -198,17 +237,18 @@ def cmd_run(args) -> int:
     if args.plot:
         _plots(args, chamber, result, norm, comparison, ref, ref_band)
     if not args.quiet:
-        for line in _what_it_means(args, chamber, result, summary, norm):
+        for line in _what_it_means(args, chamber, result, summary, norm, executor):
             print("lpy-light: " + line, file=sys.stderr)
     return 130 if result.partial else 0
 
 
-def _what_it_means(args, chamber, result, summary, norm) -> list:
+def _what_it_means(args, chamber, result, summary, norm, executor=None) -> list:
     """The lines a run ends with: how long, how precise, where the results are and what their columns hold."""
     from . import units
 
-    lines = ["%d photons in %.2f s (%.3g photons/s, estimator %s)%s"
-             % (result.photons, result.seconds, summary["photons_per_second"] or 0, result.estimator,
+    where = "" if executor is None else " on %d Dask worker(s) at %s" % (executor.workers, executor.address)
+    lines = ["%d photons in %.2f s (%.3g photons/s, estimator %s)%s%s"
+             % (result.photons, result.seconds, summary["photons_per_second"] or 0, result.estimator, where,
                 " — PARTIAL (interrupted)" if result.partial else "")]
     sig = summary.get("relative_sigma")
     if sig is not None:
@@ -352,6 +392,8 @@ def _grow_parser(sub):
     g.add_argument("--out", required=True, help="output folder")
     g.add_argument("--plot-every", type=_count, default=None, metavar="N",
                    help="also save plant_<step>.png every N steps (plant.png, the last step, is always saved)")
+    g.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
+                   help="set an extern of the model, e.g. --set PAR_MIN=20 (a Python literal, else text); repeatable")
     g.add_argument("--quiet", action="store_true", help="no progress lines")
     o = g.add_argument_group("lighting a model that does not call lpy-light (no edit to the model)")
     o.add_argument("--organs", action="append", default=None, metavar="MODULE=MATERIAL[/BACK]",
@@ -406,6 +448,21 @@ def _outside_model(args, path):
                       position=None if args.at is None else _point(args.at, "--at"), parameter=None, targets=targets)
 
 
+def extern_values(sets) -> dict:
+    """``["PAR_MIN=20", "SCENE=angers"]`` → ``{"PAR_MIN": 20, "SCENE": "angers"}``: Python literals, else text."""
+    import ast
+    out = {}
+    for text in sets:
+        name, eq, value = text.partition("=")
+        if not eq or not name.strip().isidentifier():
+            raise InputError("--set %s: expected NAME=VALUE (an extern of the model)" % text)
+        try:
+            out[name.strip()] = ast.literal_eval(value.strip())
+        except (ValueError, SyntaxError):
+            out[name.strip()] = value.strip()
+    return out
+
+
 def cmd_grow(args) -> int:
     from . import light as lightmod
     from .lpy import require_lpy
@@ -426,6 +483,7 @@ def cmd_grow(args) -> int:
     before = len(lightmod.MODELS)
     variables = {} if outside else {k: v for k, v in (("STEPS", args.steps), ("PHOTONS", args.photons),
                                                      ("PRECISION", args.precision), ("SEED", args.seed)) if v}
+    variables.update(extern_values(args.set))
     try:
         lsys = lpy.Lsystem(str(path), variables)
     except Exception as exc:    # L-Py reports syntax errors as generic exceptions
@@ -550,8 +608,12 @@ def _out_in_argv(argv) -> str | None:
 def main(argv=None) -> int:
     logging.basicConfig(format="lpy-light: warning: %(message)s", level=logging.WARNING)
     argv = list(sys.argv[1:] if argv is None else argv)
+    passthrough = []
     try:
-        args = _parser().parse_args(argv)
+        if argv[:1] == ["sweep"]:       # options the sweep does not know go to every run
+            args, passthrough = _parser().parse_known_args(argv)
+        else:
+            args = _parser().parse_args(argv)
     except SystemExit as exc:
         if exc.code == 2 and argv[:1] == ["run"]:     # refused by argparse: --out holds no results either
             _remove_stale_results(_out_in_argv(argv[1:]))
@@ -566,6 +628,9 @@ def main(argv=None) -> int:
             return cmd_run(args)
         if args.command == "grow":
             return cmd_grow(args)
+        if args.command == "sweep":
+            from .sweep import cmd_sweep
+            return cmd_sweep(args, passthrough)
     except LpyLightError as exc:
         print("lpy-light: error: %s" % exc, file=sys.stderr)
         _remove_stale_results(getattr(args, "out", None))

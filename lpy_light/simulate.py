@@ -268,6 +268,26 @@ class KernelScene:
         self.organs = []
         self._assemble(np.zeros((0, 3, 3)), np.zeros((0, 2), np.int32), np.zeros(0, np.int32))
 
+    # A KernelScene pickles without its Embree scene and the C function addresses (a ctypes handle and
+    # this process's pointers): unpickling rebuilds them from the same triangles, so a copy on another
+    # process or machine (a Dask worker: lpy_light.cluster) traces bitwise what this one traces, with
+    # every setting and the pruning outcome as they are here.
+    _NOT_PICKLED = ("scene", "intersect", "occluded")
+
+    def __getstate__(self):
+        return {k: v for k, v in self.__dict__.items() if k not in self._NOT_PICKLED}
+
+    def __setstate__(self, state):
+        self.__dict__.update(state)
+        self.intersect = embree.intersect1_address()
+        self.occluded = embree.occluded1_address()
+        n_one, n = int(self.geom_offset[1]), self.n_chamber_triangles
+        sensors = self.chamber.sensors
+        self.scene = embree.EmbreeScene(one_sided=self._chamber_verts[:n_one], two_sided=self._chamber_verts[n_one:n],
+                                        sensors=sensors.bounding_triangles() if len(sensors) else None)
+        if self.organs:
+            self.scene.set_organs(self.tri_verts[n:])
+
     def _assemble(self, verts, mat, receiver):
         self.tri_verts = np.ascontiguousarray(np.concatenate([self._chamber_verts, verts]))
         normal = triangle_normals(verts) if len(verts) else np.zeros((0, 3))
@@ -506,10 +526,58 @@ def relative_sigma(tally, tally_prod, n, rows, samples=None) -> np.ndarray:
     return rel.ravel()
 
 
+class LocalThreads:
+    """Chunks traced by a pool of threads in this process: :func:`run`'s default executor.
+
+    An executor of :func:`run` is where chunks are traced, and only that; the merge in chunk
+    order, ``precision``, ``progress`` and interrupts are :func:`run`'s, whatever the executor.
+    Its methods:
+
+    * ``open(kscene, n_chunks) -> slots``: get ready to trace ``kscene``; ``slots`` is how many
+      tasks it runs at once (:func:`run` keeps ``2 · slots`` submitted);
+    * ``chunks_per_task`` (read after ``open``): consecutive chunks in one task (1 here);
+    * ``submit(seed, chunks) -> future``: ``[kscene.trace(seed, first, count) for first, count in
+      chunks]`` somewhere, a future with ``result()`` and ``cancel()`` (:func:`run` sums each chunk's
+      tallies alone, in chunk order, and cancels the tasks it will not sum);
+    * ``close()``: release what ``open`` took;
+    * ``describe() -> dict``: where the run was traced, for ``summary.json`` (empty here).
+
+    ``threads``: the chunks traced at once, known before ``open`` (memory check).
+    :class:`lpy_light.cluster.DaskChunks` is the other one: chunks as tasks on a Dask cluster.
+    """
+
+    def __init__(self, threads: int | None = None):
+        threads = threads or default_threads()
+        if isinstance(threads, bool) or not isinstance(threads, (int, np.integer)) or not 1 <= threads <= MAX_THREADS:
+            raise InputError("threads must be in 1..%d, got %r" % (MAX_THREADS, threads))
+        self.threads = int(threads)
+        self._pool = self._kscene = None
+
+    def open(self, kscene, n_chunks: int) -> int:
+        self._kscene = kscene
+        self.threads = min(self.threads, n_chunks)      # more threads than chunks would only wait
+        self._pool = ThreadPoolExecutor(max_workers=self.threads)
+        return self.threads
+
+    chunks_per_task = 1
+
+    def submit(self, seed: int, chunks):
+        (first, count), = chunks
+        return self._pool.submit(lambda: [self._kscene.trace(seed, first, count)])
+
+    def close(self):
+        if self._pool is not None:
+            self._pool.shutdown(wait=True)      # chunks already running finish (and are not summed)
+            self._pool = self._kscene = None
+
+    def describe(self) -> dict:
+        return {}
+
+
 def run(kscene: KernelScene, photons: int, seed: int = 1, threads: int | None = None, progress=None,
         stop=None, precision: float | None = None, precision_rows=None, min_photons: int = 4 * CHUNK,
-        precision_of=None) -> Result:
-    """Trace ``photons`` photons over ``threads`` threads.
+        precision_of=None, executor=None) -> Result:
+    """Trace ``photons`` photons over ``threads`` threads (or on ``executor``).
 
     ``progress(done, total, seconds)`` is called as chunks finish;  ``stop()``
     returning True ends the run early: the result then holds the chunks finished
@@ -528,18 +596,20 @@ def run(kscene: KernelScene, photons: int, seed: int = 1, threads: int | None = 
     far and returns the largest relative σ of what the caller reads (e.g. organs' PAR and R:FR).
     ``extra["precision_reached"]`` says whether it was met.  ``progress`` then
     gets, as its total, the photons that the largest σ so far says are needed.
+
+    ``executor``: where the chunks are traced (see :class:`LocalThreads`, the
+    default, with ``threads``; :class:`lpy_light.cluster.DaskChunks` on a Dask
+    cluster).  Chunk c's photons and random streams are the same wherever it runs
+    and chunks are summed here in chunk order, so the numbers do not depend on it.
     """
     if photons < 1:
         raise ValueError("photons must be >= 1")
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or not 0 <= seed <= MAX_SEED:
         raise InputError("the seed must be a whole number in 0..2^63-1, got %r" % (seed,))
-    threads = threads or default_threads()
-    if not 1 <= threads <= MAX_THREADS:
-        raise InputError("threads must be in 1..%d, got %r" % (MAX_THREADS, threads))
+    executor = executor if executor is not None else LocalThreads(threads)
     n_chunks = math.ceil(photons / CHUNK)
-    threads = min(threads, n_chunks)      # more threads than chunks would only wait
     n_stats = len(kscene.materials) + len(kscene.emit_nee) + len(getattr(kscene, "mir_point", ()))
-    check_memory(kscene.n_rows, kscene.n_bands, threads, n_stats=n_stats)
+    check_memory(kscene.n_rows, kscene.n_bands, min(getattr(executor, "threads", 1), n_chunks), n_stats=n_stats)
     acc = [np.zeros((kscene.n_rows, kscene.n_bands)), np.zeros((kscene.n_rows, kscene.n_bands, kscene.n_bands)),
            np.zeros(N_COUNTERS, np.int64), np.zeros((n_stats, 3))]
 
@@ -549,7 +619,6 @@ def run(kscene: KernelScene, photons: int, seed: int = 1, threads: int | None = 
     done = 0
     partial = interrupted = False
     start = time.perf_counter()
-    window = 2 * threads
     reached = None
     if precision is not None:
         if precision_rows is None:
@@ -575,20 +644,25 @@ def run(kscene: KernelScene, photons: int, seed: int = 1, threads: int | None = 
     batch = getattr(kscene, "nee_batch", None)
     if batch is not None and photons < 64 * batch:
         kscene.nee_batch = 1
+    slots = 1
+    pending = []
     try:
-        with ThreadPoolExecutor(max_workers=threads) as pool:
-            pending = []
+        try:
+            slots = executor.open(kscene, n_chunks)       # after nee_batch: an executor may copy the scene
+            per_task = max(1, int(getattr(executor, "chunks_per_task", 1)))
+            window = 2 * slots                                # tasks submitted ahead
             next_chunk = 0
-            try:
-                while next_chunk < n_chunks or pending:
-                    while next_chunk < n_chunks and len(pending) < window:
-                        first, count = chunk(next_chunk)
-                        pending.append((count, pool.submit(kscene.trace, seed, first, count)))
-                        next_chunk += 1
-                    count, fut = pending[0]
-                    part = fut.result()
+            ended = False
+            while not ended and (next_chunk < n_chunks or pending):
+                while next_chunk < n_chunks and len(pending) < window:
+                    group = [chunk(c) for c in range(next_chunk, min(next_chunk + per_task, n_chunks))]
+                    pending.append((group, executor.submit(seed, group)))
+                    next_chunk += len(group)
+                group, fut = pending[0]
+                parts = fut.result()
+                pending.pop(0)
+                for (first, count), part in zip(group, parts):     # one chunk at a time, in chunk order
                     state = ([a + p for a, p in zip(state[0], part)], state[1] + count)
-                    pending.pop(0)
                     acc, done = state
                     worst = None         # with ``precision``: the largest relative σ so far
                     if precision is not None and done >= min(min_photons, photons) and done < photons:
@@ -599,24 +673,26 @@ def run(kscene: KernelScene, photons: int, seed: int = 1, threads: int | None = 
                             int(min(photons, max(done, done * (worst / precision) ** 2)))
                         progress(done, total, time.perf_counter() - start)
                     if stop is not None and stop() and done < photons:
-                        partial = True
+                        partial = ended = True
                         break
                     if worst is not None and worst <= precision:
-                        reached = True
+                        reached = ended = True
                         break
-            except KeyboardInterrupt:
-                partial, interrupted = state[1] < photons, True
-            finally:
-                for _, fut in pending:
-                    fut.cancel()
+        except KeyboardInterrupt:
+            partial, interrupted = state[1] < photons, True
+        finally:
+            for _, fut in pending:
+                fut.cancel()
+            executor.close()
     finally:
         if batch is not None:
             kscene.nee_batch = batch
     acc, done = state
     seconds = time.perf_counter() - start
-    result = Result(done, acc[0], acc[1], acc[2], seconds, threads, seed, kscene.n_sensors, kscene.n_receivers,
+    result = Result(done, acc[0], acc[1], acc[2], seconds, slots, seed, kscene.n_sensors, kscene.n_receivers,
                   estimator=kscene.estimator, materials=[m.name for m in kscene.materials], nee_stats=acc[3],
                   partial=partial, interrupted=interrupted)
+    result.extra.update(executor.describe())
     if precision is not None:
         if not reached and done == photons:
             reached = bool(largest_sigma(acc, done) <= precision)
