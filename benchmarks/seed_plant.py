@@ -200,9 +200,11 @@ def collect(photons=1_000_000, plants=4, threads=None, seed=1, variants=VARIANTS
     results = {v: [] for v in variants}
     seconds = {v: 0.0 for v in variants}
     spill, counted = [], {}
-    modules = None
+    modules = down = None
     for plant in range(plants):
         shapes, modules = derive(plant)
+        if down is None:
+            down = facing(shapes, modules)
         spill.append(seed_attribution(shapes)[1])
         _counted_area(shapes, modules, counted)
         for v in variants:
@@ -214,7 +216,22 @@ def collect(photons=1_000_000, plants=4, threads=None, seed=1, variants=VARIANTS
     share = {k: a[0] / a[1] for k, a in counted.items()}
     sensors = sensors_check(models["one"], photons, threads, seed) if check_sensors else None
     return {"modules": modules, "results": results, "seconds": seconds, "spill": spill, "counted_area": share,
-            "sensors": sensors}
+            "sensors": sensors, "facing_down": down}
+
+
+def facing(shapes, modules) -> dict:
+    """Per organ kind: (area projected on the floor whose front faces down, whole projected area), cm².
+
+    The seed's culling hides an organ's back faces: light from the lamps above meets the front of a
+    surface facing up, the back of one facing down."""
+    out = {}
+    for sid, v, f, _ in shapes:
+        tri = v[f]
+        nz = 0.5 * np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])[:, 2]    # projected area, signed
+        a = out.setdefault(modules[sid], [0.0, 0.0])
+        a[0] += -nz[nz < 0].sum()
+        a[1] += np.abs(nz).sum()
+    return out
 
 
 def _counted_area(shapes, modules, acc):
@@ -276,17 +293,20 @@ def main(argv=None):
     print("  the seed's mapping counts these shares of each kind's area: %s; ids mapped past the last triangle "
           "(into the sensors): %s" % (", ".join("%s %.1f %%" % (k, 100 * got["counted_area"][k]) for k in KINDS),
                                        got["spill"]))
+    print("  projected area facing down (front normal downwards; plant 0): %s"
+          % ", ".join("%s %.0f of %.0f cm²" % (k, *got["facing_down"][k]) for k in KINDS))
     print("\nPer organ kind, both bands summed (photon hits per 1e7 photons emitted in each band): ours = mean "
-          "over the plants; σ plant = one plant's spread; ratio = ours / seed, z with σ ours, σ plant and √seed")
-    print("| variant | kind | seed | ours | σ mean | σ plant | ratio ± σ | z |")
+          "over the plants; σ MC = our σ of one plant's run; σ plant = the spread between plants (MC included); "
+          "ratio = ours / seed; z with σ plant / √plants, σ plant (the seed's plant is one draw) and √seed")
+    print("| variant | kind | seed | ours | σ MC | σ plant | ratio ± σ | z |")
     print("|---|---|---|---|---|---|---|---|")
     for v in VARIANTS:
         totals = kind_totals(results[v], modules, ids)
         for kind in KINDS:
             s = sum(seed[i].sum() for i in ids if modules[i] == kind)
-            mean, sm, sp, _ = totals[kind]
+            mean, sm, sp, mc = totals[kind]
             ratio, rs, z = compare(mean, sm, sp, s)
-            print("| %s | %s | %.0f | %.1f | %.1f | %.1f | %.3f ± %.3f | %+.1f |" % (v, kind, s, mean, sm, sp, ratio, rs, z))
+            print("| %s | %s | %.0f | %.1f | %.1f | %.1f | %.3f ± %.3f | %+.1f |" % (v, kind, s, mean, mc, sp, ratio, rs, z))
     print("\nPer band (variant seed): kind, band, seed, ours ± σ mean (σ plant), ratio")
     totals_b = [kind_totals(results["seed"], modules, ids, bands=(b,)) for b in (0, 1)]
     for kind in KINDS:
