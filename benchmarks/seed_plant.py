@@ -315,6 +315,15 @@ def main(argv=None):
             mean, sm, sp, _ = totals_b[b][kind]
             ratio, rs, z = compare(mean, sm, sp, s)
             print("  %-9s %s  %5.0f  %7.1f ± %5.1f (%5.1f)  %.3f ± %.3f  z %+.1f" % (kind, label, s, mean, sm, sp, ratio, rs, z))
+    print("\nPer organ (29), both bands: share within 4σ and the largest |z| (σ: ours over √plants, σ plant, √seed)")
+    for v in VARIANTS:
+        zs = []
+        for i in ids:
+            x = np.array([p[i][0].sum() for p in results[v]])
+            spread = x.std(ddof=1) if len(x) > 1 else 0.0
+            zs.append(compare(x.mean(), spread / math.sqrt(len(x)), spread, seed[i].sum())[2])
+        zs = np.abs(zs)
+        print("  %-9s within 4σ %2d of %d, max |z| %.1f" % (v, int((zs < 4).sum()), len(zs), zs.max()))
     if args.organs:
         print("\nPer organ, both bands (ours: mean over plants ± σ plant)")
         print("| id | module | seed | ours | one-sided | mapping | seed variant |")
