@@ -148,13 +148,20 @@ class LightModel:
     colour_top : float or None
         PAR (µmol m⁻² s⁻¹) drawn in yellow in ``lpy-light grow``'s pictures: give the scale the model's
         interpretation rules use in :func:`~lpy_light.plant_view.par_colour`, so both agree.
+    one_sided_organs : bool
+        An ablation for comparisons, not physics (default False): organs are seen from their front only
+        (the side their right-hand-rule normal points to), as engines that cull back faces see them (the
+        seed's photon mapping with ``$BACKFACE_CULLING yes``): a photon reaching an organ's back face
+        passes through it uncounted.  A leaf has two faces: leave it off to light a plant
+        (``benchmarks/seed_plant.py``, ``docs/validation.md``).
     """
 
     def __init__(self, scene="angers-12bands", organs=None, photons: int = 300_000, seed: int = 1,
                  threads: int | None = None, plant_unit: str = "cm", position=None, parameter: str = "light",
                  estimator: str = "nee", lamp_flux=None, normalisation_photons: int = 1_000_000,
                  progress=None, nee_picks: int = 2, targets=None, mirror_events: float = 0.2,
-                 precision: float | None = None, lamp_scale=1.0, colour_top: float | None = None):
+                 precision: float | None = None, lamp_scale=1.0, colour_top: float | None = None,
+                 one_sided_organs: bool = False):
         self.chamber = scene if hasattr(scene, "triangles") else load_scene(resolve_scene(str(scene)))
         if plant_unit not in UNITS:
             raise InputError("unknown plant_unit %r (use one of %s)" % (plant_unit, ", ".join(UNITS)))
@@ -168,6 +175,7 @@ class LightModel:
         self.parameter = parameter
         self.progress = progress
         self.kscene = simulate.KernelScene(self.chamber, estimator=estimator)
+        self.kscene.one_sided_organs = bool(one_sided_organs)
         if int(nee_picks) < 0:
             raise InputError("nee_picks must be >= 0 (0 = every target at every vertex)")
         self.kscene.nee_picks = int(nee_picks)

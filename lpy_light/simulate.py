@@ -266,6 +266,10 @@ class KernelScene:
         self.emit_nee = np.ones(len(em.kind), np.uint8)
         self.mat_nee = np.ones(0, np.uint8)
         self.organs = []
+        # organs seen from their front only, as one-sided surfaces: a photon meets no back face (it passes
+        # through).  An ablation, to compare with engines that cull back faces (the seed's photon mapping,
+        # benchmarks/seed_plant.py), not physics: a leaf has two faces.  Takes effect at set_organs().
+        self.one_sided_organs = False
         self._assemble(np.zeros((0, 3, 3)), np.zeros((0, 2), np.int32), np.zeros(0, np.int32))
 
     # A KernelScene pickles without its Embree scene and the C function addresses (a ctypes handle and
@@ -286,12 +290,12 @@ class KernelScene:
         self.scene = embree.EmbreeScene(one_sided=self._chamber_verts[:n_one], two_sided=self._chamber_verts[n_one:n],
                                         sensors=sensors.bounding_triangles() if len(sensors) else None)
         if self.organs:
-            self.scene.set_organs(self.tri_verts[n:])
+            self.scene.set_organs(self.tri_verts[n:], one_sided=getattr(self, "one_sided_organs", False))
 
     def _assemble(self, verts, mat, receiver):
         self.tri_verts = np.ascontiguousarray(np.concatenate([self._chamber_verts, verts]))
         normal = triangle_normals(verts) if len(verts) else np.zeros((0, 3))
-        self.two_sided = np.concatenate([self._chamber_two_sided, np.ones(len(verts), bool)])
+        self.two_sided = np.concatenate([self._chamber_two_sided, np.full(len(verts), not self.one_sided_organs)])
         self.tri_normal = np.ascontiguousarray(np.concatenate([self._chamber_normal, normal]))
         self.tri_mat = np.ascontiguousarray(np.concatenate([self._chamber_mat, mat]).astype(np.int32))
         self.tri_receiver = np.ascontiguousarray(np.concatenate([self._chamber_receiver, receiver]).astype(np.int32))
@@ -451,7 +455,7 @@ class KernelScene:
         else:
             tris = None
             self._assemble(np.zeros((0, 3, 3)), np.zeros((0, 2), np.int32), np.zeros(0, np.int32))
-        self.scene.set_organs(tris)
+        self.scene.set_organs(tris, one_sided=self.one_sided_organs)
 
     def _mirror_draw(self):
         """(planes in use (int32), their cumulative draw probabilities, 1 / probability) for image events."""

@@ -16,4 +16,4 @@ fi
 [ -x .venv-lpy/bin/python ] || "$PY" -m venv .venv-lpy
 bash "$BUNDLE" .venv-lpy
 .venv-lpy/bin/python -m pip install -q -c <(echo 'numpy<2') -e ".[test]"
-.venv-lpy/bin/python -m pytest -q -m lpy tests
+.venv-lpy/bin/python -m pytest -q -m "lpy and not slow" tests
