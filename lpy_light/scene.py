@@ -21,6 +21,7 @@ Scene files (TOML) name the inputs; paths are relative to the scene file::
     specular = "mirror"       # specular reflection: "mirror" (SEC2) | "phong" (lobe from roughness)
     coplanar = "random"       # a hit where surfaces coincide picks one at random (SEC2) | "arbitrary"
     materials = "sec2"        # .rad parameters of untabled materials: SEC2's reading | "radiance"
+    repeated_names = "all"    # surfaces sharing an identifier: all kept (Radiance) | "last" (SEC2's reader)
     max_depth = 50            # scattering events before a photon is cut
 
 Without ``bands`` the scene has one band, ``rad``, with the ``.rad`` values.
@@ -50,7 +51,7 @@ UNITS = {"mm": 1e-3, "cm": 1e-2, "dm": 1e-1, "m": 1.0, "km": 1e3}
 _SCENE_KEYS = {"geometry", "sensors", "unit", "optical", "specularities", "bands", "solid_sensors", "remove",
                "physics", "spectrum", "calibration", "name", "plant_position"}
 _PHYSICS_KEYS = {"one_sided": bool, "lamps": str, "specular": str, "max_depth": int, "offset": float,
-                 "coplanar": str, "materials": str}
+                 "coplanar": str, "materials": str, "repeated_names": str}
 
 
 @dataclass
@@ -62,6 +63,10 @@ class Physics:
     specular: str = "mirror"
     coplanar: str = "random"     # coincident coplanar surfaces: "random" (fair choice per hit) | "arbitrary"
     materials: str = "sec2"      # .rad material parameters without tables: "sec2" | "radiance" (materials.py)
+    # surfaces of the geometry that share an identifier: "all" kept (Radiance) | only the "last" one (SEC2 and
+    # the photon-mapping engine read a .rad into a table by name, where a repeated name replaces the earlier
+    # surface; the Angers chamber's lamp-box mirror at x = 50 is lost that way: docs/validation.md, section 8)
+    repeated_names: str = "all"
     max_depth: int = 50
     offset: float = 2.0 ** -21   # ray offset, relative to the hit's round-off scale (docs/stability.md)
 
@@ -273,6 +278,8 @@ def chamber_from_spec(spec: dict, base: Path, name: str = "<scene>", text: str =
         raise err("physics.coplanar must be 'random' or 'arbitrary'", "physics.coplanar")
     if physics.materials not in ("sec2", "radiance"):
         raise err("physics.materials must be 'sec2' or 'radiance'", "physics.materials")
+    if physics.repeated_names not in ("all", "last"):
+        raise err("physics.repeated_names must be 'all' or 'last'", "physics.repeated_names")
     if not 0 <= physics.max_depth <= 10000:
         raise err("physics.max_depth must be in 0..10000", "physics.max_depth")
     if not 0 < physics.offset < 1e-2:   # NaN fails too
@@ -394,7 +401,9 @@ def build_chamber(prims, sensors=None, bands=None, optical=None, specularities=N
     Materials are looked up as Radiance does: the latest definition before the
     surface that uses it.  ``solid`` primitives become opaque receivers (one per
     surface).  ``remove`` leaves out every primitive with one of these
-    identifiers (and errors if one matches nothing).
+    identifiers (and errors if one matches nothing).  With ``physics.repeated_names
+    = "last"`` a surface of ``prims`` whose identifier a later surface of ``prims``
+    repeats is left out (SEC2's reading).
     """
     physics = physics or Physics()
     n_bands = 1 if bands is None else len(bands)
@@ -409,9 +418,19 @@ def build_chamber(prims, sensors=None, bands=None, optical=None, specularities=N
     removed = set()
 
     stream = [(p, False) for p in prims] + [(p, True) for p in solid]
-    for prim, is_receiver in stream:
+    last = {}      # identifier -> the last surface of the geometry that has it
+    if physics.repeated_names == "last":
+        for i, (prim, is_receiver) in enumerate(stream):
+            if not is_receiver and prim.type in SURFACE_TYPES:
+                last[prim.identifier] = i
+    for i, (prim, is_receiver) in enumerate(stream):
         if prim.identifier in remove:
             removed.add(prim.identifier)
+            continue
+        if last.get(prim.identifier, i) != i and prim.type in SURFACE_TYPES:
+            log.info("%s: %s %s left out: the %s of the same name at %s replaces it (physics.repeated_names = "
+                     "'last')", prim.where, prim.type, prim.identifier, stream[last[prim.identifier]][0].type,
+                     stream[last[prim.identifier]][0].where)
             continue
         t = prim.type
         if t in MATERIAL_TYPES or t in SURFACE_TYPES:

@@ -73,6 +73,8 @@ def test_scene_names_its_geometry_and_removals(name):
     kept = {s[0] for s in chamber.surfaces}
     assert not kept & set(vs.removed)
     assert kept == {p.identifier for p in prims if p.type == "polygon"} - set(vs.removed)
+    names = [s[0] for s in chamber.surfaces]
+    assert len(names) == len(set(names)), "SEC2's reading of repeated names: one surface per identifier"
 
 
 # ---------------------------------------------------------------------------------------------
