@@ -172,7 +172,11 @@ MAX_COORDINATE = 1e12
 
 
 def load_scene(path, **overrides) -> Chamber:
-    """Read a scene TOML file and everything it names; return a :class:`Chamber`."""
+    """Read a scene TOML file and everything it names; return a :class:`Chamber`.
+
+    ``overrides`` replace the file's keys (``None`` leaves a key alone), except ``physics``: a table
+    merged key by key into the file's ``[physics]`` (``physics={"one_sided": False}`` changes that
+    one choice and keeps the scene's others)."""
     path = Path(path)
     try:
         text = path.read_text(encoding="utf-8-sig")     # a byte-order mark, as some editors write, is dropped
@@ -194,7 +198,10 @@ def load_scene(path, **overrides) -> Chamber:
         elif "end of document" in msg:      # e.g. an unclosed array: the problem shows at the last line
             line = len(text.rstrip("\n").split("\n"))
         raise InputError("not valid TOML: %s" % msg.split(" (at")[0], path, line) from None
-    spec.update({k: v for k, v in overrides.items() if v is not None})
+    overrides = {k: v for k, v in overrides.items() if v is not None}
+    if isinstance(overrides.get("physics"), dict) and isinstance(spec.get("physics"), dict):
+        overrides["physics"] = {**spec["physics"], **overrides["physics"]}
+    spec.update(overrides)
     return chamber_from_spec(spec, path.parent, str(path), text)
 
 
