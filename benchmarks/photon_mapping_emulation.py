@@ -11,7 +11,8 @@ at commit c67bdb7) is public, so what it did differently from lpy-light can be r
    arithmetic and BVH order.  Printed here: the Makrolon's share per strip for rays from the lamps and from
    the lamp-box ceiling, in its scene (its triangles in its order, its 36-triangle sensor discs in the same
    geometry, build quality medium), and in the same scene without the discs (the share moves: an accident
-   of traversal order wherever the two float32 distances are equal, ~45 % of the rays).
+   of traversal order wherever the two float32 distances are equal); then, for comparison, a textbook
+   Möller-Trumbore test in float32 and float64 over the same triangles (how often the distances are equal).
 3. Its discs are 36-triangle polygons, 0.5 % short of πr².
 
 Then lpy-light's runs with the Makrolon winning in one strip (the cornices in the others), mixed with those
@@ -127,6 +128,49 @@ def embree_shares(tris, names, lamps, n=20000, seed=0):
     return out
 
 
+def moller_trumbore_shares(tris, names, lamps, dtype, n=100000, seed=1):
+    """{source: {strip: (Makrolon share, share of equal distances)}} for a textbook Möller-Trumbore test in
+    ``dtype`` over the tie's triangles in file order, back faces rejected, the first of equal distances kept
+    (strict ``<``): one guess at what an engine without Embree, such as SEC2, does."""
+    sel = np.isin(names, ["cornicheG", "cornicheD", "cornicheAV", "cornicheAR", "fauxPlafondInf"])
+    tri, nm = tris[sel].astype(dtype), names[sel]
+    rng = np.random.default_rng(seed)
+    out = {}
+    for source in ("lamps", "ceiling"):
+        out[source] = {}
+        for strip, ((x0, x1), (y0, y1)) in STRIPS.items():
+            target = np.c_[rng.uniform(x0, x1, n), rng.uniform(y0, y1, n), np.full(n, 1970.0)]
+            if source == "lamps":
+                k = rng.integers(0, len(lamps), n)
+                o = lamps[k, 0] + (lamps[k, 1] - lamps[k, 0]) * rng.random((n, 1))
+            else:
+                o = np.c_[rng.uniform(25, 2375, n), rng.uniform(25, 1815, n), np.full(n, 2179.9)]
+            d = target - o
+            d /= np.linalg.norm(d, axis=1)[:, None]
+            o, d = o.astype(dtype), d.astype(dtype)
+            ts = []
+            for v0, v1, v2 in tri:
+                e1, e2 = v1 - v0, v2 - v0
+                p = np.cross(d, e2)
+                det = (e1 * p).sum(-1)
+                tv = o - v0
+                u = (tv * p).sum(-1)
+                q = np.cross(tv, e1)
+                v = (d * q).sum(-1)
+                t = (e2 * q).sum(-1) * (dtype(1) / det)
+                ts.append(np.where((det > 0) & (u >= 0) & (u <= det) & (v >= 0) & (u + v <= det), t, np.inf))
+            ts = np.array(ts)
+            best, who = np.full(n, np.inf), np.full(n, -1)
+            for i in range(len(tri)):
+                better = ts[i] < best
+                best, who = np.where(better, ts[i], best), np.where(better, i, who)
+            hit = nm[who[who >= 0]]
+            mak = ts[nm == "fauxPlafondInf"].min(axis=0)
+            cor = ts[nm != "fauxPlafondInf"].min(axis=0)
+            out[source][strip] = (np.mean(hit == "fauxPlafondInf"), np.mean(mak == cor))
+    return out
+
+
 def strip_run(strip, photons, threads, seed):
     """Per-photon sensor counts (S,), σ (S,) of the full chamber with the Makrolon winning in ``strip`` only
     (None: nowhere) and the cornices elsewhere."""
@@ -189,6 +233,12 @@ def main(argv=None):
     f_pm = {s: 0.5 * (scene_shares["lamps"][s] + scene_shares["ceiling"][s]) for s in STRIPS}
     print("   used below (mean of the two ray sources): %s" % "  ".join("f_%s %.2f" % kv for kv in f_pm.items()))
 
+    for dtype in (np.float32, np.float64):
+        print("   textbook Möller-Trumbore in %s, file order, first of equal distances kept:" % dtype.__name__)
+        for source, per in moller_trumbore_shares(tris, names, lamps, dtype).items():
+            print("   %-32s rays from the %-7s %s" % ("", source, "  ".join(
+                "%s %.2f (equal %.2f)" % (k, a, b) for k, (a, b) in per.items())))
+
     print("3. lpy-light, %g photons per run (the Makrolon winning in no strip, then in each one):" % args.photons)
     base, base_s = strip_run(None, args.photons, args.threads, args.seed)
     col = {}
@@ -198,15 +248,26 @@ def main(argv=None):
     pm = reference.read_photon_mapping(validation.PHOTON_MAPPING)
     refs = [("photon mapping", pm), ("SEC2", sec2)]
 
-    def mix(f):     # (1 - Σf) base + Σ f_k run_k, independent runs
-        m = base + sum(f[k] * (col[k][0] - base) for k in STRIPS)
-        s = np.sqrt((1 - sum(f.values())) ** 2 * base_s ** 2 + sum(f[k] ** 2 * col[k][1] ** 2 for k in STRIPS))
-        return m, s
+    def mix(f):     # base + Σ f_k (run_k - base); the runs share their random numbers (one seed), so the
+        m = base + sum(f[k] * (col[k][0] - base) for k in STRIPS)     # differences are nearly noiseless and the
+        return m, base_s                                                 # mixture has the base run's σ
     m, s = mix({k: 0.5 for k in STRIPS})
     report("fair choice (lpy-light)", m, s, refs, chamber)
     m, s = mix(f_pm)
     report("the engine's ties", m, s, refs, chamber)
     report("the engine's ties, discs 0.5 % short", 0.995 * m, 0.995 * s, refs, chamber)
+
+    print("4. For comparison only (a fit, not a reading): the share in strip G that each reference's counts "
+          "alone prefer, the other strips fair (0.5):")
+    fair = {k: 0.5 for k in STRIPS}
+    m0, s0 = mix(fair)
+    for name, ref, scale in (("SEC2", sec2, 1.0), ("photon mapping (discs 0.5 % short)", pm, 0.995)):
+        y, sy = ref.photons / ref.n_photons, ref.photons_std / ref.n_photons
+        w = 1 / (sy ** 2 + (scale * s0) ** 2)      # the level and the shape together
+        g = scale * (col["G"][0] - base)
+        r = y - scale * m0
+        var = 1 / np.sum(w * g * g)
+        print("   %-36s f_G = %.2f ± %.2f" % (name, 0.5 + var * np.sum(w * g * r), np.sqrt(var)))
 
 
 if __name__ == "__main__":
