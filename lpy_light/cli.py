@@ -117,9 +117,11 @@ def _parser() -> argparse.ArgumentParser:
                    help="how far (scene units) a measured point may lie from its sensor (default: the sensor's radius)")
     r.add_argument("--plot", action="store_true",
                    help="write PNG maps of each sensor plane (needs matplotlib: pip install 'lpy-light[plot]')")
-    r.add_argument("--reference", metavar="FILE", default=None,
+    r.add_argument("--reference", metavar="FILE", action="append", default=None,
                    help="compare with a reference (SEC2 mesures .txt, photon-mapping captor_result csv or a run's "
-                        "sensors.csv): prints the comparison, and with --plot maps the difference in σ units")
+                        "sensors.csv): prints the comparison and the ratio per row of each sensor plane, and with "
+                        "--plot maps the difference in σ units and draws the rows; given twice, the two references' "
+                        "average (per emitted photon)")
     r.add_argument("--reference-band", metavar="LABEL", default=None,
                    help="band compared with the reference (default 655-665 when the scene has it, else the first)")
     sub.add_parser("scenes", help="list the built-in scenes")
@@ -166,7 +168,7 @@ def cmd_run(args) -> int:
     path = resolve_scene(args.scene)
     chamber = load_scene(path)
     measured, ref, ref_band = _before_run(args, chamber)
-    check_outputs(args.out, chamber.inputs + [Path(f) for f in (args.calibrate, args.reference) if f])
+    check_outputs(args.out, chamber.inputs + [Path(f) for f in [args.calibrate] + (args.reference or []) if f])
     kscene = simulate.KernelScene(chamber, estimator=args.estimator)
     if not 0 <= args.nee_picks <= MAX_NEE_PICKS:
         raise InputError("--nee-picks must be in 0..%d (0: every target at every vertex)" % MAX_NEE_PICKS)
@@ -234,6 +236,8 @@ def _trace_and_write(args, path, chamber, kscene, measured, ref, ref_band, execu
         atomic_write(Path(args.out) / "calibration.csv", csv_text(calibration.rows))
     if comparison is not None:
         print("lpy-light: %s vs %s (band %s): %s" % (path.name, ref.source, ref_band, comparison.line()))
+        for profile in comparison.profiles:
+            print("\n".join("lpy-light: " + line for line in profile.lines()))
     if args.plot:
         _plots(args, chamber, result, norm, comparison, ref, ref_band)
     if not args.quiet:
@@ -304,16 +308,19 @@ def _before_run(args, chamber):
         band = args.reference_band or ("655-665" if "655-665" in labels else labels[0])
         if band not in labels:
             raise InputError("--reference-band %s is not a band of the scene (%s)" % (band, ", ".join(labels)))
-        rpath = Path(args.reference)
-        if not rpath.is_file():
-            raise InputError("reference file not found", rpath)
-        if rpath.suffix == ".csv" and not rpath.name.startswith("captor_result"):
-            ref = reference.read_run(rpath, band=band)
-        else:
-            ref = reference.read(rpath)
-        if len(ref.photons) != len(chamber.sensors):
-            raise InputError("reference has %d sensors, the scene %d" % (len(ref.photons), len(chamber.sensors)),
-                             ref.source)
+        refs = []
+        for rpath in map(Path, args.reference):
+            if not rpath.is_file():
+                raise InputError("reference file not found", rpath)
+            if rpath.suffix == ".csv" and not rpath.name.startswith("captor_result"):
+                ref = reference.read_run(rpath, band=band)
+            else:
+                ref = reference.read(rpath)
+            if len(ref.photons) != len(chamber.sensors):
+                raise InputError("reference has %d sensors, the scene %d" % (len(ref.photons),
+                                                                            len(chamber.sensors)), ref.source)
+            refs.append(ref)
+        ref = reference.average(refs)
     return measured, ref, band
 
 
@@ -335,22 +342,29 @@ def _after_run(args, chamber, result, norm, measured, ref, ref_band):
         photons, std = result.sensors()
         b = chamber.band_labels.index(ref_band)
         comparison = reference.compare(photons[:, b], std[:, b], result.photons, ref)
+        comparison.profiles = reference.row_profiles(photons[:, b], std[:, b], ref, chamber.sensors.center,
+                                                     chamber.sensors.normal, unit=chamber.unit)
         extra["reference"] = {"file": ref.source, "band": ref_band, "n_photons": ref.n_photons,
                               "within_4sigma": comparison.within_4sigma, "bias": comparison.bias,
                               "bias_std": comparison.bias_std, "rms": comparison.rms, "rms_noise": comparison.rms_noise,
-                              "max_abs_z": float(abs(comparison.z).max()), "line": comparison.line()}
+                              "max_abs_z": float(abs(comparison.z).max()), "line": comparison.line(),
+                              "rows": [{"plane": p.plane, "axis": p.axis, "slope": p.slope, "slope_std": p.slope_std,
+                                        "position": p.position.tolist(), "ratio": p.ratio.tolist(),
+                                        "ratio_std": p.ratio_std.tolist(), "sensors": p.count.tolist()}
+                                       for p in comparison.profiles]}
     return extra, calibration, comparison
 
 
 def _plots(args, chamber, result, norm, comparison, ref, ref_band):
     """--plot: maps of every sensor plane (ppfd when known, else photons), and of the difference to --reference."""
-    from . import plots, units
+    from . import plots, reference, units
     from .results import derived_table
 
     if not len(chamber.sensors):
         logging.getLogger("lpy_light").warning("--plot: the scene has no sensors to map")
         return []
     photons, std = result.sensors()
+    b = chamber.band_labels.index(ref_band) if ref_band is not None else 0
     area_m2 = chamber.sensors.area * chamber.metres_per_unit ** 2
     value = par = rfr = None
     if norm is not None:
@@ -372,6 +386,11 @@ def _plots(args, chamber, result, norm, comparison, ref, ref_band):
                                      "(ours − reference) / σ")],
                                    prefix="diff", title="%s: %s" % (name, comparison.line()), unit=chamber.unit,
                                    diverging=True)
+        columns = reference.row_profiles(photons[:, b], std[:, b], ref, chamber.sensors.center,
+                                         chamber.sensors.normal, unit=chamber.unit, across=0)
+        paths += plots.profile_plots(args.out, comparison.profiles, columns,
+                                     title="%s vs %s (%s)" % (name, Path(ref.source).name if " + " not in ref.source
+                                                              else "the references' average", ref_band))
     if not args.quiet:
         print("lpy-light: pictures: %s" % ", ".join(str(p) for p in paths), file=sys.stderr)
     return paths

@@ -150,6 +150,38 @@ def sensor_maps(out_dir, centers, normals, panels, prefix: str = "map", title: s
     return paths
 
 
+def profile_plots(out_dir, rows, columns=(), title: str = "") -> list:
+    """One PNG per sensor plane, ``profile_<plane>.png``: the ratio to a reference (mean 1) along the
+    plane's rows and, when given, its columns, with ±1σ bars.  ``rows``, ``columns``: lists of
+    :class:`lpy_light.reference.Profile` (from :func:`lpy_light.reference.row_profiles`); returns the paths."""
+    plt = require_matplotlib()
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    by_plane = {}
+    for p in list(rows) + list(columns):
+        by_plane.setdefault(p.plane, []).append(p)
+    paths = []
+    for plane, profiles in by_plane.items():
+        fig, axs = plt.subplots(1, len(profiles), figsize=(5.2 * len(profiles), 3.8), squeeze=False)
+        for ax, p in zip(axs[0], profiles):
+            ax.axhline(1.0, color="0.5", linewidth=0.8)
+            ax.errorbar(p.position, p.ratio, yerr=p.ratio_std, marker="o", markersize=4, capsize=2, linewidth=1)
+            ax.set_xlabel(p.axis, fontsize=9)
+            ax.set_ylabel("ours / reference (mean 1)", fontsize=9)
+            ax.set_title("along %s: change %+.2f%% ± %.2f%%" % (p.axis, 100 * p.slope, 100 * p.slope_std), fontsize=9)
+            ax.tick_params(labelsize=8)
+            lo, hi = float(np.min(p.ratio - p.ratio_std)), float(np.max(p.ratio + p.ratio_std))
+            pad = max(0.002, 0.1 * (hi - lo))
+            ax.set_ylim(min(lo, 0.995) - pad, max(hi, 1.005) + pad)
+        fig.suptitle(("%s\n" % title if title else "") + profiles[0].title, fontsize=10)
+        fig.tight_layout()
+        path = out_dir / ("profile_%s.png" % plane)
+        fig.savefig(path, dpi=100)
+        plt.close(fig)
+        paths.append(path)
+    return paths
+
+
 def run_panels(labels, photons, ppfd=None, par=None, rfr=None) -> list:
     """The panels of a run's maps: each band's ppfd (µmol m⁻² s⁻¹) when known, else its photons; PAR, R:FR."""
     panels = []

@@ -9,13 +9,19 @@ is compared after scaling it to the reference's photon number:
 
 and summarised by the share of sensors with |z| < 4, the mean relative bias
 (with its σ) and the rms relative difference.
+
+A per-sensor test cannot see a structure shared by whole rows of sensors (a 1 % tilt
+hides under a 0.8 % noise per sensor); :func:`row_profiles` averages the ratio to the
+reference (both normalised to mean 1) over each row of each sensor plane, with its σ,
+and fits its least-squares change across the rows.  :func:`average` makes one
+reference of several (e.g. SEC2 and the photon-mapping engine).
 """
 from __future__ import annotations
 
 import csv
 import math
 import re
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -48,6 +54,7 @@ class Comparison:
     bias_std: float          # its σ (from both σ's)
     rms: float               # rms of ``relative``
     rms_noise: float         # rms of ``relative`` that noise alone explains
+    profiles: list = field(default_factory=list)   # :class:`Profile` per sensor plane (filled by the CLI)
 
     def line(self) -> str:
         return ("within 4σ %.1f%%, bias %+.2f%% ± %.2f%%, rms %.2f%% (noise alone %.2f%%), max |z| %.1f"
@@ -171,6 +178,95 @@ def _read_csv(path: Path, columns=()) -> list:
         raise InputError("not UTF-8 text (byte 0x%02x)" % exc.object[exc.start], path) from None
     except csv.Error as exc:
         raise InputError("not a readable csv file (%s)" % exc, path) from None
+
+
+def average(refs) -> Reference:
+    """One reference from several of the same S sensors: the mean of their counts per emitted photon
+    (each scaled to the first one's photon number), σ from theirs (independent runs)."""
+    refs = list(refs)
+    if len(refs) == 1:
+        return refs[0]
+    first = refs[0]
+    for r in refs[1:]:
+        if r.photons.shape != first.photons.shape:
+            raise InputError("references to average have %d and %d sensors" % (len(first.photons), len(r.photons)),
+                             r.source)
+    k = [first.n_photons / r.n_photons for r in refs]
+    photons = sum(ki * r.photons for ki, r in zip(k, refs)) / len(refs)
+    std = np.sqrt(sum((ki * r.photons_std) ** 2 for ki, r in zip(k, refs))) / len(refs)
+    return Reference(photons, std, first.n_photons, " + ".join(r.source for r in refs),
+                     next((r.centers for r in refs if r.centers is not None), None))
+
+
+@dataclass
+class Profile:
+    """The ratio to a reference along one axis of one sensor plane, averaged over the sensors that share a
+    coordinate (a row: the sensors of one ``y`` when ``axis`` is y), both sides normalised to mean 1 over all
+    sensors.  Arrays are (k,), one entry per row, in increasing ``position``."""
+
+    plane: str               # file-name tag of the plane, e.g. "z1000"
+    title: str               # e.g. "z = 1000 mm, facing +z"
+    axis: str                # the coordinate that names a row ("y": rows of constant y)
+    position: np.ndarray     # (k,) that coordinate, scene units
+    ratio: np.ndarray        # (k,) mean over the row of (ours / reference), mean 1 over all sensors
+    ratio_std: np.ndarray    # (k,) its σ, from both σ's
+    count: np.ndarray        # (k,) sensors in the row
+    slope: float             # least-squares change of ``ratio`` from the first row to the last (σ-weighted)
+    slope_std: float         # its σ
+
+    def lines(self) -> list:
+        """Printable lines: the plane and its slope, then one line per row."""
+        out = ["%s: ratio to the reference along %s (mean 1), change across the rows %+.2f%% ± %.2f%%"
+               % (self.title, self.axis, 100 * self.slope, 100 * self.slope_std)]
+        for x, r, s, n in zip(self.position, self.ratio, self.ratio_std, self.count):
+            out.append("  %s = %-8g %.4f ± %.4f  (%+.2f%%, %d sensor%s)" % (self.axis, x, r, s, 100 * (r - 1), n,
+                                                                         "s" * int(n > 1)))
+        return out
+
+
+def row_profiles(photons, photons_std, ref: Reference, centers, normals, unit: str = "", across: int = 1) -> list:
+    """:class:`Profile` of every sensor plane (largest first) of our counts (S,) against ``ref``.
+
+    ``centers``, ``normals``: (S, 3) the sensors'.  Rows are the sensors sharing the plane's in-plane
+    coordinate number ``across`` (1: the second, ``y`` on a horizontal plane, as in rows of constant y;
+    0: the first, columns of constant x).  Per sensor r_s = (ours_s / Σ ours) / (ref_s / Σ ref), then
+    divided by its mean over all sensors; its σ combines both relative σ's.  A row's ratio is the mean
+    of its r_s.  The slope is the σ-weighted least-squares line through the rows against their position,
+    reported as its change from the first row to the last (0 for a plane with one row).
+    """
+    from .plots import plane_groups
+
+    photons, photons_std = np.asarray(photons, float), np.asarray(photons_std, float)
+    if photons.shape != ref.photons.shape:
+        raise InputError("reference has %d sensors, the run %d" % (len(ref.photons), len(photons)), ref.source)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratio = (photons / photons.sum()) / (ref.photons / ref.photons.sum())
+        rel = np.hypot(photons_std / photons, ref.photons_std / ref.photons)
+    ok = np.isfinite(ratio) & np.isfinite(rel)
+    scale = ratio[ok].mean() if ok.any() else 1.0
+    ratio, sigma = ratio / scale, ratio / scale * rel
+    out = []
+    for g in plane_groups(centers, normals, unit=unit):
+        idx = g["index"][ok[g["index"]]]
+        if not len(idx):
+            continue
+        coord = g["uv"][ok[g["index"]], across]
+        span = max(float(np.ptp(g["uv"])), 1e-300)
+        key = np.round(coord / span, 6)
+        rows = np.unique(key)
+        pos = np.array([coord[key == k].mean() for k in rows])
+        n = np.array([np.sum(key == k) for k in rows])
+        r = np.array([ratio[idx[key == k]].mean() for k in rows])
+        rs = np.array([np.sqrt(np.sum(sigma[idx[key == k]] ** 2)) for k in rows]) / n
+        slope = slope_std = 0.0
+        if len(rows) > 1 and np.all(rs > 0):
+            t = (pos - pos.mean()) / np.ptp(pos)           # first row to last: t spans 1
+            w = 1 / rs ** 2
+            a = np.stack([np.ones_like(t), t], axis=1)
+            cov = np.linalg.inv(a.T @ (a * w[:, None]))
+            slope, slope_std = float((cov @ (a.T @ (w * r)))[1]), float(np.sqrt(cov[1, 1]))
+        out.append(Profile(g["name"], g["title"], g["axes"][across], pos, r, rs, n, slope, slope_std))
+    return out
 
 
 def compare(photons, photons_std, n_photons: float, ref: Reference) -> Comparison:

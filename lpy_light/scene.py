@@ -22,6 +22,7 @@ Scene files (TOML) name the inputs; paths are relative to the scene file::
     specular = "mirror"       # specular reflection: "mirror" (SEC2) | "phong" (lobe from roughness)
     coplanar = "random"       # a hit where surfaces coincide picks one at random (SEC2) | "arbitrary"
     materials = "sec2"        # .rad parameters of untabled materials: SEC2's reading | "radiance"
+    repeated_names = "all"    # surfaces sharing an identifier: all kept (Radiance) | "last" (SEC2's reader)
     max_depth = 50            # scattering events before a photon is cut
 
 Without ``bands`` the scene has one band, ``rad``, with the ``.rad`` values.
@@ -62,7 +63,7 @@ SCALE_FACTOR_UNITS = {1000.0: "mm", 100.0: "cm", 10.0: "dm", 1.0: "m", 0.001: "k
 _SCENE_KEYS = {"geometry", "sensors", "unit", "optical", "specularities", "bands", "solid_sensors", "remove",
                "physics", "spectrum", "calibration", "name", "plant_position", "flip_normals"}
 _PHYSICS_KEYS = {"one_sided": bool, "lamps": str, "specular": str, "max_depth": int, "offset": float,
-                 "coplanar": str, "materials": str}
+                 "coplanar": str, "materials": str, "repeated_names": str}
 
 
 @dataclass
@@ -74,6 +75,10 @@ class Physics:
     specular: str = "mirror"
     coplanar: str = "random"     # coincident coplanar surfaces: "random" (fair choice per hit) | "arbitrary"
     materials: str = "sec2"      # .rad material parameters without tables: "sec2" | "radiance" (materials.py)
+    # surfaces of the geometry that share an identifier: "all" kept (Radiance) | only the "last" one (SEC2 and
+    # the photon-mapping engine read a .rad into a table by name, where a repeated name replaces the earlier
+    # surface; the Angers chamber's lamp-box mirror at x = 50 is lost that way: docs/validation.md, section 8)
+    repeated_names: str = "all"
     max_depth: int = 50
     offset: float = 2.0 ** -21   # ray offset, relative to the hit's round-off scale (docs/stability.md)
 
@@ -198,7 +203,11 @@ def resolve_scene(name) -> Path:
 
 
 def load_scene(path, **overrides) -> Chamber:
-    """Read a scene TOML file and everything it names; return a :class:`Chamber`."""
+    """Read a scene TOML file and everything it names; return a :class:`Chamber`.
+
+    ``overrides`` replace the file's keys (``None`` leaves a key alone), except ``physics``: a table
+    merged key by key into the file's ``[physics]`` (``physics={"one_sided": False}`` changes that
+    one choice and keeps the scene's others)."""
     path = Path(path)
     try:
         text = path.read_text(encoding="utf-8-sig")     # a byte-order mark, as some editors write, is dropped
@@ -220,7 +229,10 @@ def load_scene(path, **overrides) -> Chamber:
         elif "end of document" in msg:      # e.g. an unclosed array: the problem shows at the last line
             line = len(text.rstrip("\n").split("\n"))
         raise InputError("not valid TOML: %s" % msg.split(" (at")[0], path, line) from None
-    spec.update({k: v for k, v in overrides.items() if v is not None})
+    overrides = {k: v for k, v in overrides.items() if v is not None}
+    if isinstance(overrides.get("physics"), dict) and isinstance(spec.get("physics"), dict):
+        overrides["physics"] = {**spec["physics"], **overrides["physics"]}
+    spec.update(overrides)
     return chamber_from_spec(spec, path.parent, str(path), text)
 
 
@@ -307,6 +319,8 @@ def chamber_from_spec(spec: dict, base: Path, name: str = "<scene>", text: str =
         raise err("physics.coplanar must be 'random' or 'arbitrary'", "physics.coplanar")
     if physics.materials not in ("sec2", "radiance"):
         raise err("physics.materials must be 'sec2' or 'radiance'", "physics.materials")
+    if physics.repeated_names not in ("all", "last"):
+        raise err("physics.repeated_names must be 'all' or 'last'", "physics.repeated_names")
     if not 0 <= physics.max_depth <= 10000:
         raise err("physics.max_depth must be in 0..10000", "physics.max_depth")
     if not 0 < physics.offset < 1e-2:   # NaN fails too
@@ -533,7 +547,9 @@ def build_chamber(prims, sensors=None, bands=None, optical=None, specularities=N
     surface).  ``remove`` leaves out every primitive with one of these
     identifiers (and errors if one matches nothing).  ``flip``: every surface of
     ``prims`` faces the other way (not ``solid``).  SEC2's ``point`` and
-    ``point_light`` are isotropic points (:meth:`EmitterBuilder.point`).
+    ``point_light`` are isotropic points (:meth:`EmitterBuilder.point`).  With
+    ``physics.repeated_names = "last"`` a surface of ``prims`` whose identifier a
+    later surface of ``prims`` repeats is left out (SEC2's reading).
     """
     physics = physics or Physics()
     n_bands = 1 if bands is None else len(bands)
@@ -548,9 +564,19 @@ def build_chamber(prims, sensors=None, bands=None, optical=None, specularities=N
     removed = set()
 
     stream = [(p, False) for p in prims] + [(p, True) for p in solid]
-    for prim, is_receiver in stream:
+    last = {}      # identifier -> the last surface of the geometry that has it
+    if physics.repeated_names == "last":
+        for i, (prim, is_receiver) in enumerate(stream):
+            if not is_receiver and prim.type in SURFACE_TYPES:
+                last[prim.identifier] = i
+    for i, (prim, is_receiver) in enumerate(stream):
         if prim.identifier in remove:
             removed.add(prim.identifier)
+            continue
+        if last.get(prim.identifier, i) != i and prim.type in SURFACE_TYPES:
+            log.info("%s: %s %s left out: the %s of the same name at %s replaces it (physics.repeated_names = "
+                     "'last')", prim.where, prim.type, prim.identifier, stream[last[prim.identifier]][0].type,
+                     stream[last[prim.identifier]][0].where)
             continue
         t = prim.type
         if t in MATERIAL_TYPES or t in SURFACE_TYPES:

@@ -110,18 +110,26 @@ def _two_sided(names):
     return f
 
 
-def _makrolon_inside_cornices(spec):
-    """Clip the Makrolon to the inner edges of the cornices (x 40..2360, y 40..1800): where the
-    cornice tops and the Makrolon are coplanar, the cornice is hit (the physical order: the sheet
-    rests on the cornices' flanges, which let nothing through)."""
-    rad = (ANGERS / "geometry" / "testChamber.rad").read_text(encoding="latin-1")
-    old = "Makrolon polygon fauxPlafondInf\n0\n0\n12\n0.0 0.0 1970\n2400.0 0.0 1970\n2400.0 1840.0 1970\n0.0 1840.0 1970"
-    new = "Makrolon polygon fauxPlafondInf\n0\n0\n12\n40 40 1970\n2360 40 1970\n2360 1800 1970\n40 1800 1970"
-    if old not in rad:
-        raise RuntimeError("testChamber.rad: Makrolon polygon not found where expected")
-    tmp = Path(tempfile.mkdtemp(prefix="lpy-light-ablation-"))
-    (tmp / "testChamber.rad").write_text(rad.replace(old, new), encoding="latin-1")
-    spec["geometry"] = str(tmp / "testChamber.rad")
+def _makrolon_clipped(x0, y0, x1, y1):
+    """A spec patch: the Makrolon clipped to x0..x1 x y0..y1, so that where a cornice top is left
+    alone at z = 1970 the cornice is hit."""
+    def patch(spec):
+        rad = (ANGERS / "geometry" / "testChamber.rad").read_text(encoding="latin-1")
+        old = ("Makrolon polygon fauxPlafondInf\n0\n0\n12\n0.0 0.0 1970\n2400.0 0.0 1970\n2400.0 1840.0 1970\n"
+               "0.0 1840.0 1970")
+        new = "Makrolon polygon fauxPlafondInf\n0\n0\n12\n%g %g 1970\n%g %g 1970\n%g %g 1970\n%g %g 1970" % (
+            x0, y0, x1, y0, x1, y1, x0, y1)
+        if old not in rad:
+            raise RuntimeError("testChamber.rad: Makrolon polygon not found where expected")
+        tmp = Path(tempfile.mkdtemp(prefix="lpy-light-ablation-"))
+        (tmp / "testChamber.rad").write_text(rad.replace(old, new), encoding="latin-1")
+        spec["geometry"] = str(tmp / "testChamber.rad")
+    return patch
+
+
+#: the cornices win in all four strips (x 40..2360, y 40..1800): the physical order, the sheet resting on
+#: the cornices' flanges, which let nothing through
+_makrolon_inside_cornices = _makrolon_clipped(40, 40, 2360, 1800)
 
 
 @dataclass
@@ -161,6 +169,15 @@ VARIANTS = {
     "cornices over makrolon": Variant("coplanar tie at z = 1970: the cornices win (Makrolon clipped to 40..2360 x "
                                       "40..1800)", spec_patch=_makrolon_inside_cornices,
                                       scenes=("angers", "angers-sanstable")),
+    "strip G: cornice wins": Variant("coplanar tie at z = 1970 in the strip along the wall y = 1840 (y 1800..1840, "
+                                     "above the sensors' last row) only: the cornice wins there (Makrolon clipped "
+                                     "to y <= 1800), a fair choice in the other three strips",
+                                     spec_patch=_makrolon_clipped(0, 0, 2400, 1800),
+                                     scenes=("angers", "angers-sanstable")),
+    "repeated_names=all": Variant("both surfaces of each repeated name kept (Radiance's reading, lpy-light's before "
+                                  "issue 21): the lamp-box mirror wall at x = 50, which SEC2's reading loses, is there",
+                                  {"physics": {"repeated_names": "all"}},
+                                  scenes=("angers", "angers-sansmakrolon", "angers-sanstable")),
     "table top only": Variant("sansTABLE: only the top and underside removed, the four sides kept",
                               {"remove": ["tableAMaree", "soustableAMaree"]}, scenes=("angers-sanstable",),
                               replace_remove=True),

@@ -284,6 +284,8 @@ CASES = [
     ("toml-physics-bool-depth", toml_with("[physics]\nmax_depth = true"), "scene.toml", 9, "must be a int"),
     ("toml-physics-lamps", toml_with('[physics]\nlamps = "laser"'), "scene.toml", 9, "'line' or 'lambertian'"),
     ("toml-physics-offset-nan", toml_with("[physics]\noffset = nan"), "scene.toml", 9, "offset must be in"),
+    ("toml-physics-repeated-names", toml_with('[physics]\nrepeated_names = "first"'), "scene.toml", 9,
+     "'all' or 'last'"),
     ("toml-physics-not-a-table", toml_with("physics = 5"), "scene.toml", 8, "'physics' must be a table"),
     ("toml-plant-position", toml_with("plant_position = [1, 2]"), "scene.toml", 8, "[x, y, z]"),
     ("toml-remove-missing", toml_with('remove = ["nothing"]'), "scene.toml", 8, "not in the geometry: nothing"),

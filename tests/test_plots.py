@@ -59,6 +59,21 @@ def test_run_plot_writes_one_png_per_plane(tmp_path):
     _valid_png(out2 / "diff_z300.png")
     ref = json.load(open(out2 / "summary.json"))["reference"]
     assert ref["band"] == "rad" and 0 <= ref["within_4sigma"] <= 1
+    # the ratio per row of each plane: printed, in summary.json, drawn (rows along y, columns along x)
+    assert "z = 300 mm, facing +z: ratio to the reference along y (mean 1)" in p.stdout
+    assert [line for line in p.stdout.splitlines() if "  y = " in line][0].split()[1:4] == ["y", "=", "300"]
+    rows = {r["plane"]: r for r in ref["rows"]}
+    assert rows["z300"]["position"] == [300, 700] and rows["z300"]["sensors"] == [3, 3]
+    assert sorted(x.name for x in out2.glob("profile_*.png")) == ["profile_x200.png", "profile_z300.png",
+                                                                   "profile_z600.png"]
+    _valid_png(out2 / "profile_z300.png")
+    # two references: their average (here a run and itself: the same ratios)
+    out3 = tmp_path / "out3"
+    p = _run("run", scene, "--photons", 20000, "--seed", 2, "--out", out3, "--quiet",
+             "--reference", out / "sensors.csv", "--reference", out / "sensors.csv")
+    assert p.returncode == 0, p.stderr
+    ref3 = json.load(open(out3 / "summary.json"))["reference"]
+    assert " + " in ref3["file"] and ref3["rows"][0]["ratio"] == pytest.approx(rows["z300"]["ratio"], rel=1e-12)
 
 
 def test_reference_with_wrong_sensor_count_is_a_clean_error(tmp_path, angers_dir):

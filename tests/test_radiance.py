@@ -20,6 +20,29 @@ def test_angers_reads_to_130_primitives(angers_dir):
     assert len(chamber.emitters) == 4 and len(chamber.skipped) == 1 and ":144:" in chamber.skipped[0]
 
 
+def test_repeated_names_all_or_the_last(angers_dir):
+    """physics.repeated_names = "last" (SEC2's and the photon-mapping engine's reading, a table by name) keeps
+    only the last surface of a name: on Angers the lamp-box mirror wall at x = 50 goes, the one at x = 2350
+    stays, nothing else changes; "all" (the default, Radiance's reading) keeps both."""
+    import numpy as np
+
+    from lpy_light.scene import Physics
+    prims = read_rad(angers_dir / "geometry/testChamber.rad")
+    every = build_chamber(prims)
+    last = build_chamber(prims, physics=Physics(repeated_names="last"))
+    lost = [s for s in every.surfaces if s not in last.surfaces]
+    assert [s[0] for s in lost] == ["refcaissonY0n", "refcaissonY0a"]
+    for name in ("refcaissonY0n", "refcaissonY0a"):
+        src = [i for i, s in enumerate(last.surfaces) if s[0] == name]
+        xs = last.triangles[np.isin(last.tri_source, src)][..., 0]
+        assert len(src) == 1 and np.all(xs == 2350.0)
+    assert len(last.triangles) == len(every.triangles) - 4
+    # a lamp (a light cylinder) is a surface too: two of one name leave one
+    two = parse_rad("void light l 0 0 3 1 1 1\nl cylinder a 0 0 7 0 0 0 1 0 0 .1\nl cylinder a 0 0 7 0 5 0 1 5 0 .1\n")
+    assert len(build_chamber(two).emitters) == 2
+    assert len(build_chamber(two, physics=Physics(repeated_names="last")).emitters) == 1
+
+
 def test_tokens_not_lines():
     text = "void plastic red 0 0 5 .5 .1 .1 0 0  # a comment\nred polygon p 0 0 9 0 0 0 1 0 0\n 1 1 0 #x\n"
     prims = parse_rad(text)

@@ -73,6 +73,8 @@ def test_scene_names_its_geometry_and_removals(name):
     kept = {s[0] for s in chamber.surfaces}
     assert not kept & set(vs.removed)
     assert kept == {p.identifier for p in prims if p.type == "polygon"} - set(vs.removed)
+    names = [s[0] for s in chamber.surfaces]
+    assert len(names) == len(set(names)), "SEC2's reading of repeated names: one surface per identifier"
 
 
 # ---------------------------------------------------------------------------------------------
@@ -122,8 +124,8 @@ def test_power_lamp_pattern_onlylamps():
 # the requirement at 1e8 photons (each run 1-3 min on 2 threads); see docs/validation.md for why
 # the variants without the table or without the Makrolon do not reach it
 KNOWN_OFF = {
-    "angers-sansmakrolon": "ours is 1.8 % below SEC2 (unexplained; docs/validation.md)",
-    "angers-sanstable": "ours is 0.8 % above SEC2: which table primitives SEC2 left out is not known",
+    "angers-sansmakrolon": "ours is 1.2 % below SEC2 (unexplained; docs/validation.md)",
+    "angers-sanstable": "ours is 1.7 % above SEC2: which table primitives SEC2 left out is not known",
 }
 
 
@@ -135,3 +137,42 @@ def test_sec2_criterion_1e8(name):
     c = run["sec2"]
     assert c.within_4sigma >= 0.99, c.line()
     assert abs(c.bias) < 0.005, c.line()
+
+
+# ---------------------------------------------------------------------------------------------
+# the shape of the full chamber's light field, row by row (issue 21; docs/validation.md, section 8)
+ROW_BOUND = 0.006        # every row and column within 0.6 % of the references' average (both at mean 1)
+CHANGE_BOUND = 0.005     # the least-squares change across the rows of a plane within 0.5 %
+
+
+@pytest.fixture(scope="module")
+def profiles_2e7():
+    """Rows (along y) and columns (along x) of both planes against the average of SEC2 and the photon-mapping
+    run, at 2e7 photons: our rows to ~0.05 %, the references' to ~0.15 % (1e9 photons each)."""
+    run = validation.validate("angers", 20_000_000, estimator="nee", seed=1, threads=2)
+    p, s = run["result"].sensors()
+    chamber = validation.load("angers")
+    avg = reference.average([reference.read_sec2(validation.SEC2_SCENES["angers"].sec2_path),
+                             reference.read_photon_mapping(validation.PHOTON_MAPPING)])
+    return {(prof.plane, prof.axis): prof for across in (1, 0)
+            for prof in reference.row_profiles(p[:, 0], s[:, 0], avg, chamber.sensors.center, chamber.sensors.normal,
+                                               across=across)}
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("plane, axis", [("z1000", "x"), ("z1400", "x"), ("z1000", "y"),
+                                         pytest.param("z1400", "y", marks=pytest.mark.xfail(strict=True, reason=(
+                                             "+0.7 % across the rows, +0.8 % in the last (y = 1830, under the strip "
+                                             "along the wall where the Makrolon and a cornice top coincide): the "
+                                             "references resolve that tie by their arithmetic, the photon-mapping "
+                                             "engine for the cornice 72 % of the time (emulated from its source), "
+                                             "lpy-light by a fair choice (docs/validation.md, section 8)")))])
+def test_full_chamber_rows_match_the_references(profiles_2e7, plane, axis):
+    """Every row (constant y) and column (constant x) of each plane within 0.6 % of the references' average (or 4σ
+    of the row, when the references' own noise, ~0.16 % per row, makes that larger: they differ from each other by
+    1.0 % in the column x = 210 at z = 1400) and no change across them beyond 0.5 %.  What breaks it: the lamp-box mirror at x = 50, which both references' readers
+    lose (physics.repeated_names = "all": +1.5 % along x at z = 1400, +1.4 % along y), or the cornices winning the
+    coplanar tie in every strip (-0.5 % along y, +2.2 % along x at z = 1400)."""
+    prof = profiles_2e7[(plane, axis)]
+    assert abs(prof.slope) < CHANGE_BOUND, prof.lines()
+    assert np.all(np.abs(prof.ratio - 1) < np.maximum(ROW_BOUND, 4 * prof.ratio_std)), prof.lines()
