@@ -15,20 +15,23 @@ from .nee import NEAR, NEAR_FLOOR, NEAR_PICKED
 from .records import T_DISC, T_MESH1, T_MESH2, T_QUAD, Targets, f64, i64
 
 
-def build_targets(n_sensors, sens_kind, sens_area, sens_center, sens_bound, n_receivers_rows, tri_receiver, tri_verts,
-                  tri_two_sided, receiver_row0, absorbed_row0, sensors=True, receivers=True, receiver_mask=None):
+def build_targets(sens, sens_area, sens_bound, n_receivers_rows, tri_receiver, tri_verts, tri_two_sided,
+                  sensors=True, receivers=True, receiver_mask=None):
     """The next-event targets (:class:`~kernel.records.Targets`) of a scene; numpy, outside the hot loop.
 
-    ``tri_receiver`` (T,) receiver index per kernel triangle or -1;
-    ``tri_two_sided`` (T,) bool.  Receiver r's incident row is
-    ``receiver_row0 + r`` and absorbed row ``absorbed_row0 + r``.
-    ``sens_bound`` (S,) a sensor's bounding radius about its centre.
-    ``receiver_mask`` (R,) bool or None: only these receivers are targets (the
-    others are still tallied, by counting).
+    ``sens`` the sensors' :class:`~kernel.records.Sensors` (S of them), ``sens_area`` (S,) their areas and
+    ``sens_bound`` (S,) their bounding radii about their centres; ``n_receivers_rows`` R;
+    ``tri_receiver`` (T,) receiver index per kernel triangle or -1; ``tri_verts`` (T, 3, 3);
+    ``tri_two_sided`` (T,) bool.  Receiver r's incident row is S + r and its absorbed row S + R + r
+    (:mod:`kernel.tallies`).  ``sensors``, ``receivers``: whether they are targets; ``receiver_mask`` (R,)
+    bool or None: only these receivers are targets (the others are still tallied, by counting).
 
     Returns a :class:`~kernel.records.Targets` whose settings (``on_sensors``, ``on_receivers``: the
     flags given; ``picks``, ``from_material``, ``from_emitter``: 0 and empty) are the caller's to set.
     """
+    n_sensors = len(sens.kind)
+    sens_kind, sens_center = sens.kind, sens.center
+    receiver_row0, absorbed_row0 = n_sensors, n_sensors + n_receivers_rows
     kind, row, abs_row, ref, first, count, area, center, near2 = [], [], [], [], [], [], [], [], []
     img_near2 = []
     sensor_target = np.full(n_sensors, -1, np.int64)

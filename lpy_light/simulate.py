@@ -313,8 +313,7 @@ class KernelScene:
             bound = np.zeros(0)
         # a Targets record; its settings (picks, sources switched on) are filled in by records()
         self.targets = tgt = build_targets(
-            self.n_sensors, self.sens.kind, sensors.area, sensors.center, bound, self.n_receivers, self.tri_receiver,
-            self.tri_verts, self.two_sided, self.n_sensors, self.n_sensors + self.n_receivers,
+            self.sens, sensors.area, bound, self.n_receivers, self.tri_receiver, self.tri_verts, self.two_sided,
             sensors=self.nee_sensors, receivers=self.nee_receivers, receiver_mask=self.nee_receiver_mask)
         # zones beside discs for two-step next events (only with random picks, where discs have own events)
         n_tgt = len(tgt.kind)
