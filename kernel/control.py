@@ -49,18 +49,18 @@ def build_control(targets, sensors, on: bool, batch: int) -> Control:
                    thr.reshape(2, n), i64(np.reshape(runs, (-1, 2))), f32(plane))
 
 
-@njit(cache=True, _nrt=False)
-def control_deposits(v, w, near, mat, cv, work):
+@njit(inline="always", cache=True)
+def control_deposits(v, w, near, mat, cv, cvw):
     """Add γ (:func:`kernel.nee.point_view`) of every sensor target, seen from vertex ``v``
-    (:class:`~kernel.records.Vertex`) with weights ``w`` (B,), to its batch's ``work.cv_acc`` (B, c) -- except
+    (:class:`~kernel.records.Vertex`) with weights ``w`` (B,), to its batch's ``cvw.batch`` (B, c) -- except
     where a pick of :func:`kernel.nee.next_event` would not serve it (inside an exclusion radius, or a near
     disc with an event of its own: ``cv.thr[near]`` holds those radii²).
 
     Targets come in runs of one plane and normal (``cv.runs``, ``cv.plane``); a run whose plane v is behind
     is skipped whole (γ = 0 there).  Within a run the loop is branch-free so that it vectorises: γ split by
-    the side of v it leaves (``work.g_r``, ``work.g_t``), then one pass per band."""
+    the side of v it leaves (``cvw.g_r``, ``cvw.g_t``), then one pass per band."""
     mode, m = v.mode, v.material
-    g_r, g_t, cv_acc = work.g_r, work.g_t, work.cv_acc
+    g_r, g_t, cv_acc = cvw.g_r, cvw.g_t, cvw.batch
     c0, c1 = view_factors(mode)
     c0, c1 = np.float32(c0), np.float32(c1)
     thr = cv.thr[near]
@@ -95,14 +95,13 @@ def control_deposits(v, w, near, mat, cv, work):
                 acc[t] += a_r * g_r[t] + a_t * g_t[t]
 
 
-@njit(cache=True, _nrt=False)
-def fold_control(n_rows, work, tgt, n_sens):
+@njit(inline="always", cache=True)
+def fold_control(n_rows, accum, cvw, sensor_target, n_sens):
     """End of a photon, with the control variate on: fold its other deposits on the sensor targets' rows
-    into its batch's ``work.cv_acc`` (B, c), so that the batch's products are taken whole by
+    into its batch's ``cvw.batch`` (B, c), so that the batch's products are taken whole by
     :func:`control_products`; the photon's other rows are left to :func:`kernel.tallies.flush` (those folded
-    become -1 in ``work.rows``)."""
-    rows, acc, touched, cv_acc = work.rows, work.acc, work.touched, work.cv_acc
-    sensor_target = tgt.sensor_target
+    become -1 in ``accum.rows``).  ``sensor_target`` (S,): each sensor's target, or -1."""
+    rows, acc, touched, cv_acc = accum.rows, accum.acc, accum.touched, cvw.batch
     n_bands = acc.shape[1]
     n = cv_acc.shape[1]
     for a in range(n_rows):
@@ -116,11 +115,11 @@ def fold_control(n_rows, work, tgt, n_sens):
             rows[a] = -1
 
 
-@njit(cache=True, _nrt=False)
-def control_products(size, work):
-    """Add one batch of ``size`` photons -- their summed sensor-target deposits ``work.cv_acc`` (B, c) -- to
-    the chunk's ``work.cv_tally`` (B, c) and ``work.cv_sq`` (B, B, c): S_b · S_b2 / size, upper triangle
-    b ≤ b2 (:func:`add_control` mirrors it); clear ``cv_acc``.
+@njit(inline="always", cache=True)
+def control_products(size, cvw):
+    """Add one batch of ``size`` photons -- their summed sensor-target deposits ``cvw.batch`` (B, c) -- to
+    the chunk's ``cvw.tally`` (B, c) and ``cvw.sq`` (B, B, c): S_b · S_b2 / size, upper triangle
+    b ≤ b2 (:func:`add_control` mirrors it); clear ``cvw.batch``.
 
     Batch means: with the control variate every photon deposits on all c sensor rows, and products
     between bands per photon (B(B+1)/2 · c of them) cost as much as the rest of a 12-band photon.  Summed
@@ -128,7 +127,7 @@ def control_products(size, work):
     of one photon, T the total of N photons in n_b batches of m_j photons), so ``Result`` estimates
     the covariance of T as N / (n_b − 1) · (Q − T Tᵀ / N): the per-photon formula with n_b − 1 in place
     of N − 1 (:func:`lpy_light.simulate.effective_samples`)."""
-    cv_acc, cv_tally, cv_sq = work.cv_acc, work.cv_tally, work.cv_sq
+    cv_acc, cv_tally, cv_sq = cvw.batch, cvw.tally, cvw.sq
     n_bands, n = cv_acc.shape[0], cv_acc.shape[1]
     inv = 1.0 / size
     for b in range(n_bands):         # contiguous over the targets: vectorises
@@ -148,10 +147,10 @@ def control_products(size, work):
 
 
 @njit(inline="always", cache=True)
-def add_control(cv, work, tallies):
+def add_control(cv, cvw, tallies):
     """End of a chunk: add the sensor targets' sums and batch products to their tally rows."""
     tally, tally_sq = tallies.tally, tallies.tally_sq
-    cv_tally, cv_sq = work.cv_tally, work.cv_sq
+    cv_tally, cv_sq = cvw.tally, cvw.sq
     n_bands = tally.shape[1]
     for t in range(cv.row.shape[0]):
         for b in range(n_bands):

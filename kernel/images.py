@@ -22,8 +22,8 @@ from .sampling import search_cdf
 from .tallies import C_SHADOW
 
 
-@njit(cache=True, _nrt=False)
-def image_event(v, n_draw, stat0, geo, mat, sens, tgt, mir, work, tallies):
+@njit(inline="always", cache=True)
+def image_event(v, n_draw, stat0, geo, mat, sens, tgt, mir, photon, stats):
     """Next events through one perfect mirror: the expected light that the segment leaving vertex ``v``
     (:class:`~kernel.records.Vertex`) brings to a target (transparent sensor or mesh) after one specular
     reflection on a mirror plane (the image method).
@@ -39,13 +39,14 @@ def image_event(v, n_draw, stat0, geo, mat, sens, tgt, mir, work, tallies):
     and on a mesh with an absorbed row that times the absorptance of the side met.  Sensors and one-sided
     meshes are met from their front only, two-sided meshes from either side.
     A vertex whose image across P lies within the target's exclusion radius (``tgt.img_near2``) makes no
-    such event: the crossing is counted instead (:func:`image_counted`).  ``tallies.nee_stats[stat0 + P]``
-    counts rays cast, paths found, weight deposited.  Returns the number of deposits in ``work.out_k`` /
-    ``work.out_w`` (at most two per draw).
+    such event: the crossing is counted instead (:func:`image_counted`).  ``stats.nee_stats[stat0 + P]``
+    counts rays cast, paths found, weight deposited.  Returns the number of deposits in ``photon.out_k`` /
+    ``photon.out_w`` (at most two per draw).
     """
     vx, vy, vz, nx, ny, nz, mode, m, vscale, _vtri = v
-    w, contrib, out_k, out_w, state, scratch = work.w, work.contrib, work.out_k, work.out_w, work.state, work.scratch
-    counters, nee_stats = tallies.counters, tallies.nee_stats
+    w, contrib, out_k, out_w = photon.w, photon.contrib, photon.out_k, photon.out_w
+    state, scratch = photon.state, photon.scratch
+    counters, nee_stats = stats.counters, stats.nee_stats
     tri_verts, offset_rel = geo.verts, geo.offset_rel
     picks = mir.picks
     n_bands = w.shape[0]

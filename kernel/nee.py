@@ -234,16 +234,16 @@ def _zone_of(t, pid, zones):
     return False
 
 
-@njit(cache=True, _nrt=False)
-def next_event(v, stat, cover_pid, control, geo, mat, sens, tgt, zones, work, tallies):
+@njit(inline="always", cache=True)
+def next_event(v, stat, cover_pid, control, geo, mat, sens, tgt, zones, photon, stats):
     """Expected deposits of the segment leaving vertex ``v`` (:class:`~kernel.records.Vertex`) on every target;
     returns how many were written.
 
     v (scene units) with unit normal n (for Lambertian emission: the emitter's normal; for a surface: the
     side the photon arrived from), its mode (V_ISOTROPIC, V_LAMBERT or V_SURFACE of material m) and its
     round-off scale: shadow rays start and stop ``geo.offset_rel`` · max(|v|, scale) off surfaces.  The
-    photon's weights are ``work.w`` (B,).  Deposits go to ``work.out_k[i]`` (tally row) and
-    ``work.out_w[i, :]`` for i < the returned count (at most 3 per target).  ``tallies.nee_stats[stat]``
+    photon's weights are ``photon.w`` (B,).  Deposits go to ``photon.out_k[i]`` (tally row) and
+    ``photon.out_w[i, :]`` for i < the returned count (at most 3 per target).  ``stats.nee_stats[stat]``
     counts shadow rays cast and found unblocked, and sums the weight they deposit (to switch off vertices
     that never see a target: see :func:`lpy_light.simulate.KernelScene.prune_next_events`).
     ``tgt.picks`` > 0: only that many targets, drawn uniformly (with replacement), each deposit scaled by
@@ -260,8 +260,8 @@ def next_event(v, stat, cover_pid, control, geo, mat, sens, tgt, zones, work, ta
     (:func:`kernel.rays.reaches`); a sensor's, when nothing is in the way (a shadow ray).
     """
     vx, vy, vz, nx, ny, nz, mode, m, vscale, vtri = v
-    w, contrib, out_k, out_w, state = work.w, work.contrib, work.out_k, work.out_w, work.state
-    counters, nee_stats = tallies.counters, tallies.nee_stats
+    w, contrib, out_k, out_w, state = photon.w, photon.contrib, photon.out_k, photon.out_w, photon.state
+    counters, nee_stats = stats.counters, stats.nee_stats
     picks = tgt.picks
     near_start, near_r2 = tgt.near_start, tgt.near_r2
     n_bands = w.shape[0]
@@ -367,7 +367,7 @@ def next_event(v, stat, cover_pid, control, geo, mat, sens, tgt, zones, work, ta
         counters[C_SHADOW] += 1
         nee_stats[stat, 0] += 1
         ox, oy, oz = vx + side * eps * nx, vy + side * eps * ny, vz + side * eps * nz
-        share = seen_share(g, geo, work.scratch, (ox, oy, oz), (dx, dy, dz), dist - tol, dist + tol, tgt.ref[t],
+        share = seen_share(g, geo, photon.scratch, (ox, oy, oz), (dx, dy, dz), dist - tol, dist + tol, tgt.ref[t],
                            (px, py, pz))
         if share == 0.0:
             continue

@@ -4,8 +4,9 @@ Every kernel function takes the few records it reads instead of dozens of loose 
 named tuple of numpy arrays and numbers, which numba compiles to plain loads (``geo.verts[tri, 0, 0]`` costs
 what a loose ``tri_verts[tri, 0, 0]`` did).  A record's fields are one concept each, named from the
 physics; two arrays of the same shape cannot be swapped by position.  ``lpy_light.simulate.KernelScene``
-builds the scene's records once per run (:func:`scene_records`), the kernel allocates one thread's
-:class:`Work` per chunk, and the caller owns the :class:`Tallies` a chunk adds to.
+builds the scene's records once per run (``KernelScene.records``), the kernel allocates one thread's work
+arrays per chunk (:class:`Photon`, :class:`Accumulator`, :class:`ControlWork`), and the caller owns the
+:class:`Tallies` and :class:`Stats` a chunk adds to.
 
 Sizes: T triangles, M materials, B bands, P paths per photon (1, or B for ``analog``), S transparent
 sensors, R receivers (solid sensors and organs), E emitter elements, n next-event targets, Q mirror
@@ -149,13 +150,17 @@ Tallies = namedtuple("Tallies", [
                      # crossings, R receivers' incident, R receivers' absorbed, then the fates: absorbed per
                      # material (M), escaped, cut at max_depth, lost, and each photon's total deposit
     "tally_sq",      # (K, B, B) float64: sums of products between bands of per-photon contributions
+])
+
+Stats = namedtuple("Stats", [
     "counters",      # (N_COUNTERS,) int64: rays, candidate overflows, scratch flushes, lost, shadow rays,
-                     # control-variate batches
+                     # control-variate batches (kernel.tallies)
     "nee_stats",     # (M + E + Q, 3) float64: shadow rays cast, unblocked, weight deposited, per material,
                      # emitter element, then mirror plane (image events)
 ])
 
-Work = namedtuple("Work", [
+# one thread's work arrays, allocated per chunk by kernel.trace.trace_chunk
+Photon = namedtuple("Photon", [
     "scratch",       # int: address of this thread's Embree block (kernel.embree.new_scratch)
     "state",         # (1,) uint64: the photon's random stream (kernel.rng)
     "w",             # (B,) float64: the photon's weights
@@ -163,14 +168,20 @@ Work = namedtuple("Work", [
     "contrib",       # (B,) float64: one next event's deposit
     "out_k",         # int64: tally rows of a vertex's next-event deposits, and
     "out_w",         # (., B) float64: the deposits
+    "seen",          # int64: sensors already tested on the current segment
+])
+
+Accumulator = namedtuple("Accumulator", [
     "acc",           # (K, B) float64: this photon's sum per tally row
     "touched",       # (K,) uint8: rows it touched, as flags, and
     "rows",          # (K,) int64: in order
     "tot",           # (B,) float64: its total deposit
-    "seen",          # int64: sensors already tested on the current segment
-    "cv_acc",        # (B, c) float64: control variate: a batch's deposits on the sensor targets,
-    "cv_tally",      # (B, c) float64: the chunk's sums of them,
-    "cv_sq",         # (B, B, c) float64: and of their products between bands (b <= b2)
+])
+
+ControlWork = namedtuple("ControlWork", [
+    "batch",         # (B, c) float64: a batch's deposits on the control variate's sensor targets,
+    "tally",         # (B, c) float64: the chunk's sums of them,
+    "sq",            # (B, B, c) float64: and of their products between bands (b <= b2)
     "g_r",           # (c,) float32: γ towards the side a vertex reflects to, and
     "g_t",           # (c,) float32: transmits to (scratch of kernel.control.control_deposits)
 ])
@@ -205,7 +216,7 @@ def f64(a):
     return np.ascontiguousarray(a, dtype=np.float64)
 
 
-def new_tallies(n_rows: int, n_bands: int, n_stats: int, n_counters: int) -> Tallies:
-    """Zeroed tallies for one chunk."""
-    return Tallies(np.zeros((n_rows, n_bands)), np.zeros((n_rows, n_bands, n_bands)),
-                   np.zeros(n_counters, np.int64), np.zeros((n_stats, 3)))
+def new_tallies(n_rows: int, n_bands: int, n_stats: int, n_counters: int):
+    """Zeroed :class:`Tallies` and :class:`Stats` for one chunk."""
+    return (Tallies(np.zeros((n_rows, n_bands)), np.zeros((n_rows, n_bands, n_bands))),
+            Stats(np.zeros(n_counters, np.int64), np.zeros((n_stats, 3))))

@@ -26,12 +26,13 @@ def fate_rows(tallies, n_materials):
 
 
 @njit(inline="always", cache=True)
-def record(k, w, n_rows, work):
-    """Add weights ``w`` (B,) to this photon's row k; returns the number of rows the photon has touched."""
-    touched, acc = work.touched, work.acc
+def record(k, w, n_rows, accum):
+    """Add weights ``w`` (B,) to this photon's row k (``accum``: :class:`~kernel.records.Accumulator`); returns
+    the number of rows the photon has touched."""
+    touched, acc = accum.touched, accum.acc
     if touched[k] == 0:
         touched[k] = 1
-        work.rows[n_rows] = k
+        accum.rows[n_rows] = k
         n_rows += 1
     for b in range(w.shape[0]):     # explicit loops: slice assignment costs ~15% at 12 bands
         acc[k, b] += w[b]
@@ -39,21 +40,21 @@ def record(k, w, n_rows, work):
 
 
 @njit(inline="always", cache=True)
-def record_all(n_out, n_rows, work):
-    """:func:`record` the ``n_out`` deposits a next event wrote to ``work.out_k`` / ``work.out_w``."""
+def record_all(n_out, n_rows, photon, accum):
+    """:func:`record` the ``n_out`` deposits a next event wrote to ``photon.out_k`` / ``photon.out_w``."""
     for a in range(n_out):
-        n_rows = record(work.out_k[a], work.out_w[a], n_rows, work)
+        n_rows = record(photon.out_k[a], photon.out_w[a], n_rows, accum)
     return n_rows
 
 
 @njit(inline="always", cache=True)
-def flush(n_rows, fate0, work, tallies):
-    """Add one photon's contributions (its rows of ``work.acc``, in the order first touched): sums and
+def flush(n_rows, fate0, accum, tallies):
+    """Add one photon's contributions (its rows of ``accum.acc``, in the order first touched): sums and
     products between bands; clear them for the next photon.
 
     Rows ``fate0 ..`` are fates; the last row receives the photon's total deposit (closure), summed in
-    ``work.tot`` (B,)."""
-    rows, acc, touched, tot = work.rows, work.acc, work.touched, work.tot
+    ``accum.tot`` (B,)."""
+    rows, acc, touched, tot = accum.rows, accum.acc, accum.touched, accum.tot
     tally, tally_sq = tallies.tally, tallies.tally_sq
     total_row = tally.shape[0] - 1
     n_bands = acc.shape[1]

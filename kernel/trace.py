@@ -48,7 +48,8 @@ from .images import image_counted, image_event
 from .nee import next_event
 from .ptr import call_ptr3, load_f32, load_i64, load_u32
 from .rays import magnitude, pick_coplanar, set_ray
-from .records import (ABSORB, DIFFUSE_R, DIFFUSE_T, SENSOR_DISC, SPECULAR_R, V_SURFACE, Vertex, Work)
+from .records import (ABSORB, DIFFUSE_R, DIFFUSE_T, SENSOR_DISC, SPECULAR_R, V_SURFACE, Accumulator, ControlWork,
+                      Photon, Vertex)
 from .rng import n_draws, seed_stream, uniform
 from .sampling import cosine_hemisphere, mirror, phong_lobe
 from .tallies import (C_BATCHES, C_CAND_OVERFLOW, C_LOST, C_RAYS, N_COUNTERS, fate_rows, flush,  # noqa: F401
@@ -89,13 +90,14 @@ def _counted(skip, t, x, y, z, tgt):
 
 
 @njit(nogil=True, cache=True)
-def trace_chunk(scene, scratch, seed, first, count, tallies):
+def trace_chunk(scene, scratch, seed, first, count, tallies, stats):
     """Trace photons ``first .. first+count-1`` of the run of ``seed`` through ``scene``
-    (:class:`~kernel.records.Scene`); add what they do to ``tallies`` (:class:`~kernel.records.Tallies`).
+    (:class:`~kernel.records.Scene`); add what they do to ``tallies`` and ``stats``
+    (:class:`~kernel.records.Tallies`, :class:`~kernel.records.Stats`).
 
     ``scratch``: the address of this thread's Embree block (:func:`kernel.embree.new_scratch`).  Photon i's
-    random stream is a function of ``(seed, i)`` only.  Allocates this chunk's work arrays
-    (:class:`~kernel.records.Work`) and runs :func:`trace_photons`.
+    random stream is a function of ``(seed, i)`` only.  Allocates this chunk's work arrays and runs
+    :func:`trace_photons`.
     """
     mat, tgt, cv = scene.materials, scene.targets, scene.control
     n_bands = mat.prob.shape[2]
@@ -104,25 +106,30 @@ def trace_chunk(scene, scratch, seed, first, count, tallies):
     n_slots = 3 * (n_tgt + tgt.picks) + 2 * (1 + int(max(scene.mirrors.picks, scene.zones.picks)))  # near discs +
     n_cv = cv.row.shape[0]                                    # picks (3 deposits each), or image / zone events
     flush_start = scene.sensors.flush_start
-    work = Work(scratch, np.zeros(1, dtype=np.uint64), np.empty(n_bands), np.empty(n_bands), np.empty(n_bands),
-                np.empty(n_slots, dtype=np.int64), np.empty((n_slots, n_bands)),
-                np.zeros((n_rows, n_bands)), np.zeros(n_rows, dtype=np.uint8), np.empty(n_rows, dtype=np.int64),
-                np.empty(n_bands),
-                np.empty(CAND_CAP + (int(np.max(np.diff(flush_start))) if flush_start.shape[0] > 1 else 0),
-                         dtype=np.int64),
-                np.zeros((n_bands, n_cv)), np.zeros((n_bands, n_cv)), np.zeros((n_bands, n_bands, n_cv)),
-                np.empty(n_cv, dtype=np.float32), np.empty(n_cv, dtype=np.float32))
-    trace_photons(scene, seed, first, count, tallies, work)
+    photon = Photon(scratch, np.zeros(1, dtype=np.uint64), np.empty(n_bands), np.empty(n_bands), np.empty(n_bands),
+                    np.empty(n_slots, dtype=np.int64), np.empty((n_slots, n_bands)),
+                    np.empty(CAND_CAP + (int(np.max(np.diff(flush_start))) if flush_start.shape[0] > 1 else 0),
+                             dtype=np.int64))
+    accum = Accumulator(np.zeros((n_rows, n_bands)), np.zeros(n_rows, dtype=np.uint8), np.empty(n_rows, dtype=np.int64),
+                        np.empty(n_bands))
+    cvw = ControlWork(np.zeros((n_bands, n_cv)), np.zeros((n_bands, n_cv)), np.zeros((n_bands, n_bands, n_cv)),
+                      np.empty(n_cv, dtype=np.float32), np.empty(n_cv, dtype=np.float32))
+    trace_photons(scene, seed, first, count, tallies, stats, photon, accum, cvw)
 
 
 @njit(nogil=True, cache=True, _nrt=False)
-def trace_photons(scene, seed, first, count, tallies, work):
+def trace_photons(scene, seed, first, count, tallies, stats, photon, accum, cvw):
     """The photon loop of :func:`trace_chunk` (its arguments, then its work arrays), compiled without
     reference counting: array views and inlined helpers here would otherwise cost an atomic
-    increment and decrement each (~20 % of a rose step's CPU time, more with two threads)."""
+    increment and decrement each (~20 % of a rose step's CPU time, more with two threads).
+
+    Every helper is inlined (``inline="always"``), next events from one place in the loop (a vertex's
+    events open the iteration that then scatters from it): a call to a separate compiled function passes
+    each of its records' arrays as ~9 machine arguments, 300-500 per call, which cost more than the next
+    events' own arithmetic (``docs/performance.md``)."""
     geo, mat, emitters, sens, tgt, mir, zones, cv = scene
-    counters = tallies.counters
-    scratch, state, w, dep, seen = work.scratch, work.state, work.w, work.dep, work.seen
+    counters = stats.counters
+    scratch, state, w, dep, seen = photon.scratch, photon.state, photon.w, photon.dep, photon.seen
     verts, tri_normal, cop_start = geo.verts, geo.normal, geo.cop_start
     flush_start, flush_list = sens.flush_start, sens.flush_list
     sensor_target, receiver_target = tgt.sensor_target, tgt.receiver_target
@@ -157,27 +164,85 @@ def trace_photons(scene, seed, first, count, tallies, work):
             for b in range(n_bands):
                 w[b] = 1.0 if mat.band_pass[b] == pb else 0.0
         depth = 0
-        after_diffuse = False   # does the current segment start at a next-event vertex?
-        vx0, vy0, vz0 = ox, oy, oz   # that vertex
+        vx0, vy0, vz0 = ox, oy, oz   # the vertex the current segment starts at
         seg_plane = -1          # the current segment leaves this mirror plane, reflected, after a next-event vertex
         wx, wy, wz = ox, oy, oz  # that next-event vertex
-        if n_tgt > 0 and tgt.from_emitter[e] != 0:
-            lamp = Vertex(ox, oy, oz, enx, eny, enz, emode, np.int64(0), oscale, np.int64(-1))
-            if control:
-                control_deposits(lamp, w, 0, mat, cv, work)
-            n_out = next_event(lamp, np.int64(n_mat + e), np.int64(-1), control, geo, mat, sens, tgt, zones, work,
-                               tallies)
-            nh = record_all(n_out, nh, work)
-            n_img = n_draws(mir.picks, state) if img_on and max_depth > 0 else 0
-            if n_img > 0:
-                n_out = image_event(lamp, n_img, stat_planes, geo, mat, sens, tgt, mir, work, tallies)
-                nh = record_all(n_out, nh, work)
-            n_zone = n_draws(zones.picks, state) if zone_on and max_depth > 0 else 0
-            if n_zone > 0:
-                n_out = zone_event(lamp, n_zone, geo, mat, sens, tgt, zones, work, tallies)
-                nh = record_all(n_out, nh, work)
-            after_diffuse = True
+        # the lamp is the photon's first vertex; from there on, each surface hit (one iteration each)
+        events = n_tgt > 0 and tgt.from_emitter[e] != 0     # does the vertex make next events?
+        after_diffuse = events   # does the current segment start at a next-event vertex?
+        vertex = Vertex(ox, oy, oz, enx, eny, enz, emode, np.int64(0), oscale, np.int64(-1))
+        stat = np.int64(n_mat + e)   # the vertex's row of nee_stats
+        cover = np.int64(-1)         # the plane whose near discs zone events served (next_event's cover_pid)
+        near = 0                     # its triangle has near discs (control_deposits)
+        room = max_depth > 0         # a further bounce is allowed (events through a mirror or a zone need one)
+        on_surface = False
+        m, tri, rec, rec_analog = np.int64(0), np.int64(-1), np.int32(-1), False    # the hit (set below)
+        px = py = pz = nx = ny = nz = pscale = 0.0
         while True:
+            if events:          # expected light of the segment leaving the vertex, if it leaves diffusely
+                if control:
+                    control_deposits(vertex, w, near, mat, cv, cvw)
+                n_out = next_event(vertex, stat, cover, control, geo, mat, sens, tgt, zones, photon, stats)
+                nh = record_all(n_out, nh, photon, accum)
+                # and through a mirror (if not cut at that mirror); the call itself is not free: only if drawn
+                n_img = n_draws(mir.picks, state) if img_on and room else 0
+                if n_img > 0:
+                    n_out = image_event(vertex, n_img, stat_planes, geo, mat, sens, tgt, mir, photon, stats)
+                    nh = record_all(n_out, nh, photon, accum)
+                n_zone = n_draws(zones.picks, state) if zone_on and room else 0
+                if n_zone > 0:     # and through one diffuse vertex beside a disc
+                    n_out = zone_event(vertex, n_zone, geo, mat, sens, tgt, zones, photon, stats)
+                    nh = record_all(n_out, nh, photon, accum)
+            if on_surface:
+                # one event, drawn with probabilities q shared by the bands; weights carry the rest
+                u = uniform(state)
+                ev = 0
+                while ev < ABSORB and u >= mat.cum[m, ev, pb]:
+                    ev += 1
+                if ev == ABSORB and mat.expected_absorption:   # ends here: its absorption is already deposited
+                    break
+                q = mat.cum[m, ev, pb] - (mat.cum[m, ev - 1, pb] if ev > 0 else 0.0)
+                for b in range(n_bands):
+                    w[b] *= mat.prob[m, ev, b] / q
+                if ev == ABSORB:
+                    if rec_analog:
+                        nh = record(absorbed0 + rec, w, nh, accum)
+                    nh = record(fate0 + m, w, nh, accum)
+                    break
+                depth += 1
+                pl = geo.mirror_plane[tri]
+                if img_on and ev == SPECULAR_R and after_diffuse and pl >= 0 and mir.on[pl] != 0 and math.isinf(mat.phong[m]):
+                    seg_plane = pl                      # a mirror right after a next-event vertex (vx0)
+                    wx, wy, wz = vx0, vy0, vz0
+                else:
+                    seg_plane = -1
+                after_diffuse = n_tgt > 0 and tgt.from_material[m] != 0 and (ev == DIFFUSE_R or ev == DIFFUSE_T)
+                vx0, vy0, vz0 = px, py, pz
+                u1, u2 = uniform(state), uniform(state)
+                if ev == DIFFUSE_R:
+                    dx, dy, dz = cosine_hemisphere(nx, ny, nz, u1, u2)
+                    side = 1.0
+                elif ev == SPECULAR_R:
+                    rx, ry, rz = mirror(dx, dy, dz, nx, ny, nz)
+                    if math.isinf(mat.phong[m]):
+                        dx, dy, dz = rx, ry, rz
+                    else:
+                        dx, dy, dz = phong_lobe(rx, ry, rz, mat.phong[m], u1, u2)
+                        if dx * nx + dy * ny + dz * nz <= 0.0:   # lobe below the surface: absorbed there
+                            if rec >= 0:
+                                nh = record(absorbed0 + rec, w, nh, accum)
+                            nh = record(fate0 + m, w, nh, accum)
+                            break
+                    side = 1.0
+                elif ev == DIFFUSE_T:
+                    dx, dy, dz = cosine_hemisphere(-nx, -ny, -nz, u1, u2)
+                    side = -1.0
+                else:   # SPECULAR_T: straight through a thin surface
+                    side = -1.0
+                inv = 1.0 / math.sqrt(dx * dx + dy * dy + dz * dz)
+                dx, dy, dz = dx * inv, dy * inv, dz * inv
+                eps = side * geo.offset_rel * (pscale + oscale)
+                ox, oy, oz = px + eps * nx, py + eps * ny, pz + eps * nz
             skip_sensors = after_diffuse and tgt.on_sensors
             skip_receivers = after_diffuse and tgt.on_receivers
             set_ray(scratch, ox, oy, oz, dx, dy, dz, _TFAR_MAX)
@@ -227,10 +292,10 @@ def trace_photons(scene, seed, first, count, tallies, work):
                 if counted and seg_plane >= 0 and sensor_target[s] >= 0:     # covered by image events?
                     counted = image_counted(sensor_target[s], wx, wy, wz, seg_plane, mir, tgt)
                 if counted and _inside(s, ox + ts * dx, oy + ts * dy, oz + ts * dz, sens):
-                    nh = record(s, w, nh, work)
+                    nh = record(s, w, nh, accum)
 
             if gid == INVALID_ID:
-                nh = record(f_escaped, w, nh, work)
+                nh = record(f_escaped, w, nh, accum)
                 break
             # the hit point from Embree's barycentrics on our float64 triangle: on its plane to float64
             # precision.  o + t·d is not: Embree's t carries the float32 error of the triangle's plane seen
@@ -243,7 +308,7 @@ def trace_photons(scene, seed, first, count, tallies, work):
             pz = b0 * verts[tri, 0, 2] + bu * verts[tri, 1, 2] + bv * verts[tri, 2, 2]
             if not (math.isfinite(px) and math.isfinite(py) and math.isfinite(pz)):
                 counters[C_LOST] += 1
-                nh = record(f_lost, w, nh, work)
+                nh = record(f_lost, w, nh, accum)
                 break
             if cop_start[tri + 1] > cop_start[tri]:   # coincident surfaces: a fair choice, not float rounding
                 tri = pick_coplanar(tri, px, py, pz, dx, dy, dz, geo, state)
@@ -265,92 +330,33 @@ def trace_photons(scene, seed, first, count, tallies, work):
             if rec_analog and seg_plane >= 0 and receiver_target[rec] >= 0:      # covered by image events?
                 rec_analog = image_counted(receiver_target[rec], wx, wy, wz, seg_plane, mir, tgt)
             if rec_analog:
-                nh = record(n_sens + rec, w, nh, work)
+                nh = record(n_sens + rec, w, nh, accum)
             if depth >= max_depth:
-                nh = record(f_cut, w, nh, work)
+                nh = record(f_cut, w, nh, accum)
                 break
             if mat.expected_absorption:   # deposit what this surface absorbs on average
                 for b in range(n_bands):
                     dep[b] = w[b] * mat.prob[m, ABSORB, b]
-                nh = record(fate0 + m, dep, nh, work)
+                nh = record(fate0 + m, dep, nh, accum)
                 if rec_analog:
-                    nh = record(absorbed0 + rec, dep, nh, work)
-            if n_tgt > 0 and tgt.from_material[m] != 0:   # expected light of the next segment if it leaves diffusely
-                cover = geo.plane_id[tri] if zone_on and after_diffuse else -1     # zone events served its near discs
-                hit = Vertex(px, py, pz, nx, ny, nz, V_SURFACE, m, pscale + oscale, tri)
-                if control:
-                    control_deposits(hit, w, 1 if tgt.near_start[tri + 1] > tgt.near_start[tri] else 0, mat, cv,
-                                     work)
-                n_out = next_event(hit, m, np.int64(cover), control, geo, mat, sens, tgt, zones, work, tallies)
-                nh = record_all(n_out, nh, work)
-                # and through a mirror (if not cut at that mirror); the call itself is not free: only if drawn
-                n_img = n_draws(mir.picks, state) if img_on and depth + 1 < max_depth else 0
-                if n_img > 0:
-                    n_out = image_event(hit, n_img, stat_planes, geo, mat, sens, tgt, mir, work, tallies)
-                    nh = record_all(n_out, nh, work)
-                n_zone = n_draws(zones.picks, state) if zone_on and depth + 1 < max_depth else 0
-                if n_zone > 0:     # and through one diffuse vertex beside a disc
-                    n_out = zone_event(hit, n_zone, geo, mat, sens, tgt, zones, work, tallies)
-                    nh = record_all(n_out, nh, work)
-
-            # one event, drawn with probabilities q shared by the bands; weights carry the rest
-            u = uniform(state)
-            ev = 0
-            while ev < ABSORB and u >= mat.cum[m, ev, pb]:
-                ev += 1
-            if ev == ABSORB and mat.expected_absorption:   # ends here: its absorption is already deposited
-                break
-            q = mat.cum[m, ev, pb] - (mat.cum[m, ev - 1, pb] if ev > 0 else 0.0)
-            for b in range(n_bands):
-                w[b] *= mat.prob[m, ev, b] / q
-            if ev == ABSORB:
-                if rec_analog:
-                    nh = record(absorbed0 + rec, w, nh, work)
-                nh = record(fate0 + m, w, nh, work)
-                break
-            depth += 1
-            pl = geo.mirror_plane[tri]
-            if img_on and ev == SPECULAR_R and after_diffuse and pl >= 0 and mir.on[pl] != 0 and math.isinf(mat.phong[m]):
-                seg_plane = pl                      # a mirror right after a next-event vertex (vx0)
-                wx, wy, wz = vx0, vy0, vz0
-            else:
-                seg_plane = -1
-            after_diffuse = n_tgt > 0 and tgt.from_material[m] != 0 and (ev == DIFFUSE_R or ev == DIFFUSE_T)
-            vx0, vy0, vz0 = px, py, pz
-            u1, u2 = uniform(state), uniform(state)
-            if ev == DIFFUSE_R:
-                dx, dy, dz = cosine_hemisphere(nx, ny, nz, u1, u2)
-                side = 1.0
-            elif ev == SPECULAR_R:
-                rx, ry, rz = mirror(dx, dy, dz, nx, ny, nz)
-                if math.isinf(mat.phong[m]):
-                    dx, dy, dz = rx, ry, rz
-                else:
-                    dx, dy, dz = phong_lobe(rx, ry, rz, mat.phong[m], u1, u2)
-                    if dx * nx + dy * ny + dz * nz <= 0.0:   # lobe below the surface: absorbed there
-                        if rec >= 0:
-                            nh = record(absorbed0 + rec, w, nh, work)
-                        nh = record(fate0 + m, w, nh, work)
-                        break
-                side = 1.0
-            elif ev == DIFFUSE_T:
-                dx, dy, dz = cosine_hemisphere(-nx, -ny, -nz, u1, u2)
-                side = -1.0
-            else:   # SPECULAR_T: straight through a thin surface
-                side = -1.0
-            inv = 1.0 / math.sqrt(dx * dx + dy * dy + dz * dz)
-            dx, dy, dz = dx * inv, dy * inv, dz * inv
-            eps = side * geo.offset_rel * (pscale + oscale)
-            ox, oy, oz = px + eps * nx, py + eps * ny, pz + eps * nz
+                    nh = record(absorbed0 + rec, dep, nh, accum)
+            events = n_tgt > 0 and tgt.from_material[m] != 0
+            if events:
+                cover = np.int64(geo.plane_id[tri]) if zone_on and after_diffuse else np.int64(-1)
+                vertex = Vertex(px, py, pz, nx, ny, nz, V_SURFACE, m, pscale + oscale, tri)
+                stat = m
+                near = 1 if tgt.near_start[tri + 1] > tgt.near_start[tri] else 0
+                room = depth + 1 < max_depth
+            on_surface = True
         if pb < n_pass - 1:
             continue         # the photon's other bands' paths still to come: one flush for all
         if control:          # batches of cv.batch photons by photon index: the same on any number of threads
-            fold_control(nh, work, tgt, n_sens)
+            fold_control(nh, accum, cvw, sensor_target, n_sens)
             in_batch += 1
             if (first + i + 1) % cv.batch == 0 or i == count - 1:
-                control_products(in_batch, work)
+                control_products(in_batch, cvw)
                 counters[C_BATCHES] += 1
                 in_batch = 0
-        flush(nh, fate0, work, tallies)
+        flush(nh, fate0, accum, tallies)
         nh = 0
-    add_control(cv, work, tallies)
+    add_control(cv, cvw, tallies)

@@ -83,8 +83,8 @@ def near_zones(tri_verts, tri_pid, n_chamber, near_start, near_list, near_r2, ce
     return Zones(0.0, zone_f, zone_i, zone_start)
 
 
-@njit(cache=True, _nrt=False)
-def zone_event(v, n_draw, geo, mat, sens, tgt, zones, work, tallies):
+@njit(inline="always", cache=True)
+def zone_event(v, n_draw, geo, mat, sens, tgt, zones, photon, stats):
     """Two-step next events: the light that the segment leaving vertex ``v`` (:class:`~kernel.records.Vertex`)
     brings to a disc *through one diffuse vertex y in the zone of surface beside the disc* (:func:`near_zones`).
 
@@ -98,11 +98,12 @@ def zone_event(v, n_draw, geo, mat, sens, tgt, zones, work, tallies):
 
     f_v as in :func:`kernel.nee.next_event`, ev the diffuse event of y's side towards x: the expected own
     next event that a photon leaving v diffusely would make at y, which a photon that does land there
-    then skips.  Returns the number of deposits written to ``work.out_k`` / ``work.out_w``.
+    then skips.  Returns the number of deposits written to ``photon.out_k`` / ``photon.out_w``.
     """
     vx, vy, vz, nx, ny, nz, mode, m, vscale, _vtri = v
-    w, contrib, out_k, out_w, state, scratch = work.w, work.contrib, work.out_k, work.out_w, work.state, work.scratch
-    counters = tallies.counters
+    w, contrib, out_k, out_w = photon.w, photon.contrib, photon.out_k, photon.out_w
+    state, scratch = photon.state, photon.scratch
+    counters = stats.counters
     zone_f, zone_i = zones.frame, zones.target_plane
     offset_rel = geo.offset_rel
     n_bands = w.shape[0]

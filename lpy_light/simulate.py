@@ -464,11 +464,11 @@ class KernelScene:
         nee_stats)."""
         if scene is None:
             scene = self.records()
-        out = new_tallies(self.n_rows, self.n_bands, len(self.materials) + len(self.emit_nee) + len(self.mir_point),
-                          N_COUNTERS)
+        tallies, stats = new_tallies(self.n_rows, self.n_bands,
+                                     len(self.materials) + len(self.emit_nee) + len(self.mir_point), N_COUNTERS)
         scratch = embree.new_scratch()
-        trace_chunk(scene, scratch.ctypes.data, seed, first, count, out)
-        return tuple(out)
+        trace_chunk(scene, scratch.ctypes.data, seed, first, count, tallies, stats)
+        return tallies.tally, tallies.tally_sq, stats.counters, stats.nee_stats
 
 
 def default_threads() -> int:

@@ -111,7 +111,7 @@ def test_shadow_rays_reach_thin_sliver_triangles(tmp_path):
     leaf itself (it was: every one of them, and next events from a grey floor lost ~30 % of its light).
     End to end, the floor's light on the leaf by next events agrees with counting."""
     from lpy_light.kernel import embree, nee
-    from lpy_light.kernel.records import Tallies, Vertex, Work
+    from lpy_light.kernel.records import Photon, Stats, Vertex
     from lpy_light.kernel.rng import seed_stream
     from lpy_light.organs import organ_from_mesh
 
@@ -131,16 +131,15 @@ def test_shadow_rays_reach_thin_sliver_triangles(tmp_path):
     scene, scratch = ks.records(), embree.new_scratch()
     tgt = scene.targets._replace(picks=1)
     state = np.zeros(1, np.uint64)
-    work = Work(scratch.ctypes.data, state, np.ones(1), np.empty(1), np.empty(1), np.empty(8, np.int64),
-                np.empty((8, 1)), *([np.zeros(0)] * 10))
+    photon = Photon(scratch.ctypes.data, state, np.ones(1), np.empty(1), np.empty(1), np.empty(8, np.int64),
+                    np.empty((8, 1)), np.empty(0, np.int64))
     stats = np.zeros((len(ks.materials) + 1, 3))
-    tallies = Tallies(np.zeros((0, 1)), np.zeros((0, 1, 1)), np.zeros(6, np.int64), stats)
     grey = ks.material_index(mats["grey"])
     vertex = Vertex(900.0, 500.0, 0.0, 0.0, 0.0, 1.0, nee.V_SURFACE, grey, 1000.0, -1)
     for i in range(200):
         seed_stream(state, 5, i)
         nee.next_event(vertex, 0, -1, False, scene.geometry, scene.materials, scene.sensors, tgt, scene.zones,
-                       work, tallies)
+                       photon, Stats(np.zeros(6, np.int64), stats))
     assert stats[0, 0] == 200 and stats[0, 1] == 200, "shadow rays cast, unblocked: %s" % stats[0, :2]
 
     ks.mat_nee[:] = 1
