@@ -142,8 +142,10 @@ Control = namedtuple("Control", [
     "plane",         # (r,) float32: each run's plane offset n·c
 ])
 
-Scene = namedtuple("Scene", ["geometry", "materials", "emitters", "sensors", "targets", "mirrors", "zones",
-                             "control"])
+# what every run traces through
+Scene = namedtuple("Scene", ["geometry", "materials", "emitters", "sensors"])
+# next events (estimator nee; None where there is no target: their code is then not compiled)
+NextEvents = namedtuple("NextEvents", ["targets", "mirrors", "zones", "control"])
 
 Tallies = namedtuple("Tallies", [
     "tally",         # (K, B) float64: sums of per-photon contributions; rows (kernel.tallies): S sensor

@@ -90,21 +90,25 @@ def _counted(skip, t, x, y, z, tgt):
 
 
 @njit(nogil=True, cache=True)
-def trace_chunk(scene, scratch, seed, first, count, tallies, stats):
+def trace_chunk(scene, nee, scratch, seed, first, count, tallies, stats):
     """Trace photons ``first .. first+count-1`` of the run of ``seed`` through ``scene``
-    (:class:`~kernel.records.Scene`); add what they do to ``tallies`` and ``stats``
+    (:class:`~kernel.records.Scene`) with next events ``nee`` (:class:`~kernel.records.NextEvents`, or None:
+    none, and none of their code is compiled); add what they do to ``tallies`` and ``stats``
     (:class:`~kernel.records.Tallies`, :class:`~kernel.records.Stats`).
 
     ``scratch``: the address of this thread's Embree block (:func:`kernel.embree.new_scratch`).  Photon i's
     random stream is a function of ``(seed, i)`` only.  Allocates this chunk's work arrays and runs
     :func:`trace_photons`.
     """
-    mat, tgt, cv = scene.materials, scene.targets, scene.control
+    mat = scene.materials
     n_bands = mat.prob.shape[2]
     n_rows = tallies.tally.shape[0]
-    n_tgt = tgt.kind.shape[0]
-    n_slots = 3 * (n_tgt + tgt.picks) + 2 * (1 + int(max(scene.mirrors.picks, scene.zones.picks)))  # near discs +
-    n_cv = cv.row.shape[0]                                    # picks (3 deposits each), or image / zone events
+    n_slots, n_cv = 1, 0
+    if nee is not None:
+        tgt = nee.targets
+        n_tgt = tgt.kind.shape[0]
+        n_slots = 3 * (n_tgt + tgt.picks) + 2 * (1 + int(max(nee.mirrors.picks, nee.zones.picks)))  # near discs +
+        n_cv = nee.control.row.shape[0]                         # picks (3 deposits each), or image / zone events
     flush_start = scene.sensors.flush_start
     photon = Photon(scratch, np.zeros(1, dtype=np.uint64), np.empty(n_bands), np.empty(n_bands), np.empty(n_bands),
                     np.empty(n_slots, dtype=np.int64), np.empty((n_slots, n_bands)),
@@ -114,11 +118,11 @@ def trace_chunk(scene, scratch, seed, first, count, tallies, stats):
                         np.empty(n_bands))
     cvw = ControlWork(np.zeros((n_bands, n_cv)), np.zeros((n_bands, n_cv)), np.zeros((n_bands, n_bands, n_cv)),
                       np.empty(n_cv, dtype=np.float32), np.empty(n_cv, dtype=np.float32))
-    trace_photons(scene, seed, first, count, tallies, stats, photon, accum, cvw)
+    trace_photons(scene, nee, seed, first, count, tallies, stats, photon, accum, cvw)
 
 
 @njit(nogil=True, cache=True, _nrt=False)
-def trace_photons(scene, seed, first, count, tallies, stats, photon, accum, cvw):
+def trace_photons(scene, nee, seed, first, count, tallies, stats, photon, accum, cvw):
     """The photon loop of :func:`trace_chunk` (its arguments, then its work arrays), compiled without
     reference counting: array views and inlined helpers here would otherwise cost an atomic
     increment and decrement each (~20 % of a rose step's CPU time, more with two threads).
@@ -126,28 +130,32 @@ def trace_photons(scene, seed, first, count, tallies, stats, photon, accum, cvw)
     Every helper is inlined (``inline="always"``), next events from one place in the loop (a vertex's
     events open the iteration that then scatters from it): a call to a separate compiled function passes
     each of its records' arrays as ~9 machine arguments, 300-500 per call, which cost more than the next
-    events' own arithmetic (``docs/performance.md``)."""
-    geo, mat, emitters, sens, tgt, mir, zones, cv = scene
+    events' own arithmetic (``docs/performance.md``).  What next events need is under ``if nee is not None``:
+    numba drops those branches when ``nee`` is None, so that ``weighted`` and ``analog`` compile a loop
+    without them."""
+    geo, mat, emitters, sens = scene
     counters = stats.counters
     scratch, state, w, dep, seen = photon.scratch, photon.state, photon.w, photon.dep, photon.seen
     verts, tri_normal, cop_start = geo.verts, geo.normal, geo.cop_start
     flush_start, flush_list = sens.flush_start, sens.flush_list
-    sensor_target, receiver_target = tgt.sensor_target, tgt.receiver_target
     n_bands = mat.prob.shape[2]
     n_mat = mat.prob.shape[0]
     n_sens = sens.center.shape[0]
     fate0, f_escaped, f_cut, f_lost = fate_rows(tallies, n_mat)
     absorbed0 = n_sens + geo.n_receivers
-    n_tgt = tgt.kind.shape[0]
     max_depth = mat.max_depth
-    control = cv.on
     in_batch = 0         # photons in the current batch of the control variate
     rh = scratch + RAYHIT
     args = scratch + ARGS
     cand_count = scratch + CAND_COUNT
-    img_on = mir.picks > 0.0 and (tgt.on_sensors or tgt.on_receivers) and n_tgt > 0 and mir.plane.shape[0] > 0
-    zone_on = zones.picks > 0.0 and tgt.on_sensors and zones.target_plane.shape[0] > 0 and 0 < tgt.picks < n_tgt
-    stat_planes = n_mat + tgt.from_emitter.shape[0]
+    if nee is not None:
+        tgt, mir, zones, cv = nee
+        sensor_target, receiver_target = tgt.sensor_target, tgt.receiver_target
+        n_tgt = tgt.kind.shape[0]
+        control = cv.on
+        img_on = mir.picks > 0.0 and (tgt.on_sensors or tgt.on_receivers) and n_tgt > 0 and mir.plane.shape[0] > 0
+        zone_on = zones.picks > 0.0 and tgt.on_sensors and zones.target_plane.shape[0] > 0 and 0 < tgt.picks < n_tgt
+        stat_planes = n_mat + tgt.from_emitter.shape[0]
 
     n_pass = mat.cum.shape[2]      # paths per photon: 1 (all bands on one), n_bands (analog), or band groups
     nh = 0
@@ -168,7 +176,9 @@ def trace_photons(scene, seed, first, count, tallies, stats, photon, accum, cvw)
         seg_plane = -1          # the current segment leaves this mirror plane, reflected, after a next-event vertex
         wx, wy, wz = ox, oy, oz  # that next-event vertex
         # the lamp is the photon's first vertex; from there on, each surface hit (one iteration each)
-        events = n_tgt > 0 and tgt.from_emitter[e] != 0     # does the vertex make next events?
+        events = False           # does the vertex make next events?
+        if nee is not None:
+            events = n_tgt > 0 and tgt.from_emitter[e] != 0
         after_diffuse = events   # does the current segment start at a next-event vertex?
         vertex = Vertex(ox, oy, oz, enx, eny, enz, emode, np.int64(0), oscale, np.int64(-1))
         stat = np.int64(n_mat + e)   # the vertex's row of nee_stats
@@ -179,7 +189,7 @@ def trace_photons(scene, seed, first, count, tallies, stats, photon, accum, cvw)
         m, tri, rec, rec_analog = np.int64(0), np.int64(-1), np.int32(-1), False    # the hit (set below)
         px = py = pz = nx = ny = nz = pscale = 0.0
         while True:
-            if events:          # expected light of the segment leaving the vertex, if it leaves diffusely
+            if nee is not None and events:   # expected light of the segment leaving the vertex, if diffusely
                 if control:
                     control_deposits(vertex, w, near, mat, cv, cvw)
                 n_out = next_event(vertex, stat, cover, control, geo, mat, sens, tgt, zones, photon, stats)
@@ -210,13 +220,14 @@ def trace_photons(scene, seed, first, count, tallies, stats, photon, accum, cvw)
                     nh = record(fate0 + m, w, nh, accum)
                     break
                 depth += 1
-                pl = geo.mirror_plane[tri]
-                if img_on and ev == SPECULAR_R and after_diffuse and pl >= 0 and mir.on[pl] != 0 and math.isinf(mat.phong[m]):
-                    seg_plane = pl                      # a mirror right after a next-event vertex (vx0)
-                    wx, wy, wz = vx0, vy0, vz0
-                else:
-                    seg_plane = -1
-                after_diffuse = n_tgt > 0 and tgt.from_material[m] != 0 and (ev == DIFFUSE_R or ev == DIFFUSE_T)
+                seg_plane = -1
+                if nee is not None:
+                    pl = geo.mirror_plane[tri]
+                    if img_on and ev == SPECULAR_R and after_diffuse and pl >= 0 and mir.on[pl] != 0 \
+                            and math.isinf(mat.phong[m]):
+                        seg_plane = pl                  # a mirror right after a next-event vertex (vx0)
+                        wx, wy, wz = vx0, vy0, vz0
+                    after_diffuse = n_tgt > 0 and tgt.from_material[m] != 0 and (ev == DIFFUSE_R or ev == DIFFUSE_T)
                 vx0, vy0, vz0 = px, py, pz
                 u1, u2 = uniform(state), uniform(state)
                 if ev == DIFFUSE_R:
@@ -243,8 +254,10 @@ def trace_photons(scene, seed, first, count, tallies, stats, photon, accum, cvw)
                 dx, dy, dz = dx * inv, dy * inv, dz * inv
                 eps = side * geo.offset_rel * (pscale + oscale)
                 ox, oy, oz = px + eps * nx, py + eps * ny, pz + eps * nz
-            skip_sensors = after_diffuse and tgt.on_sensors
-            skip_receivers = after_diffuse and tgt.on_receivers
+            skip_sensors = skip_receivers = False
+            if nee is not None:
+                skip_sensors = after_diffuse and tgt.on_sensors
+                skip_receivers = after_diffuse and tgt.on_receivers
             set_ray(scratch, ox, oy, oz, dx, dy, dz, _TFAR_MAX)
             call_ptr3(geo.intersect, geo.scene, rh, args)
             counters[C_RAYS] += 1
@@ -288,9 +301,11 @@ def trace_photons(scene, seed, first, count, tallies, stats, photon, accum, cvw)
                       + (sens.center[s, 2] - oz) * snz) / den
                 if ts <= 0.0 or ts >= t:
                     continue
-                counted = _counted(skip_sensors, sensor_target[s] if skip_sensors else -1, vx0, vy0, vz0, tgt)
-                if counted and seg_plane >= 0 and sensor_target[s] >= 0:     # covered by image events?
-                    counted = image_counted(sensor_target[s], wx, wy, wz, seg_plane, mir, tgt)
+                counted = True
+                if nee is not None:
+                    counted = _counted(skip_sensors, sensor_target[s] if skip_sensors else -1, vx0, vy0, vz0, tgt)
+                    if counted and seg_plane >= 0 and sensor_target[s] >= 0:     # covered by image events?
+                        counted = image_counted(sensor_target[s], wx, wy, wz, seg_plane, mir, tgt)
                 if counted and _inside(s, ox + ts * dx, oy + ts * dy, oz + ts * dz, sens):
                     nh = record(s, w, nh, accum)
 
@@ -325,10 +340,12 @@ def trace_photons(scene, seed, first, count, tallies, stats, photon, accum, cvw)
             oscale = max(abs(ox), abs(oy), abs(oz))
             rec = geo.receiver[tri]
             # counted unless the next-event tallies cover this hit
-            rec_analog = rec >= 0 and _counted(skip_receivers, receiver_target[rec] if skip_receivers else -1,
-                                               vx0, vy0, vz0, tgt)
-            if rec_analog and seg_plane >= 0 and receiver_target[rec] >= 0:      # covered by image events?
-                rec_analog = image_counted(receiver_target[rec], wx, wy, wz, seg_plane, mir, tgt)
+            rec_analog = rec >= 0
+            if nee is not None:
+                rec_analog = rec >= 0 and _counted(skip_receivers, receiver_target[rec] if skip_receivers else -1,
+                                                   vx0, vy0, vz0, tgt)
+                if rec_analog and seg_plane >= 0 and receiver_target[rec] >= 0:      # covered by image events?
+                    rec_analog = image_counted(receiver_target[rec], wx, wy, wz, seg_plane, mir, tgt)
             if rec_analog:
                 nh = record(n_sens + rec, w, nh, accum)
             if depth >= max_depth:
@@ -340,8 +357,9 @@ def trace_photons(scene, seed, first, count, tallies, stats, photon, accum, cvw)
                 nh = record(fate0 + m, dep, nh, accum)
                 if rec_analog:
                     nh = record(absorbed0 + rec, dep, nh, accum)
-            events = n_tgt > 0 and tgt.from_material[m] != 0
-            if events:
+            if nee is not None:
+                events = n_tgt > 0 and tgt.from_material[m] != 0
+            if nee is not None and events:
                 cover = np.int64(geo.plane_id[tri]) if zone_on and after_diffuse else np.int64(-1)
                 vertex = Vertex(px, py, pz, nx, ny, nz, V_SURFACE, m, pscale + oscale, tri)
                 stat = m
@@ -350,13 +368,14 @@ def trace_photons(scene, seed, first, count, tallies, stats, photon, accum, cvw)
             on_surface = True
         if pb < n_pass - 1:
             continue         # the photon's other bands' paths still to come: one flush for all
-        if control:          # batches of cv.batch photons by photon index: the same on any number of threads
+        if nee is not None and control:     # the control variate's batches of cv.batch photons, by photon
             fold_control(nh, accum, cvw, sensor_target, n_sens)
-            in_batch += 1
+            in_batch += 1                   # index: the same on any number of threads
             if (first + i + 1) % cv.batch == 0 or i == count - 1:
                 control_products(in_batch, cvw)
                 counters[C_BATCHES] += 1
                 in_batch = 0
         flush(nh, fate0, accum, tallies)
         nh = 0
-    add_control(cv, cvw, tallies)
+    if nee is not None:
+        add_control(cv, cvw, tallies)

@@ -19,8 +19,8 @@ import numpy as np
 from .errors import InputError, ResourceError
 from .kernel import embree
 from .kernel.control import build_control
-from .kernel.records import (Emitters, Geometry, Materials, Mirrors, Scene, Sensors, Zones, f64, i32, i64,
-                             new_tallies, u8)
+from .kernel.records import (Emitters, Geometry, Materials, Mirrors, NextEvents, Scene, Sensors, Zones, f64, i32,
+                             i64, new_tallies, u8)
 from .kernel.tallies import C_BATCHES, N_COUNTERS
 from .kernel.targets import build_targets
 from .kernel.trace import trace_chunk
@@ -438,9 +438,10 @@ class KernelScene:
         cdf[-1] = 1.0 + 1e-12
         return on, cdf, 1.0 / p
 
-    def records(self) -> Scene:
+    def records(self):
         """The kernel's records of this scene as it stands (:mod:`lpy_light.kernel.records`), with the current
-        settings (``nee_*``, the sources and mirror planes switched on): built once per run."""
+        settings (``nee_*``, the sources and mirror planes switched on): ``(Scene, NextEvents or None)``, None
+        where next events have no target (``weighted``, ``analog``).  Built once per run."""
         phys = self.chamber.physics
         nee = self.nee_sensors or self.nee_receivers
         geometry = Geometry(self.scene.handle, self.intersect, self.occluded, float(phys.offset), i64(self.geom_offset),
@@ -456,18 +457,20 @@ class KernelScene:
         mirrors = Mirrors(float(self.nee_images) if nee else 0.0, i32(plane), f64(cdf), f64(inv_p), u8(self.mir_on),
                           f64(self.mir_point), f64(self.mir_normal), f64(self.mir_box), u8(self.mir_one_sided))
         zones = self.zones._replace(picks=float(self.nee_zones) if self.nee_sensors else 0.0)
+        scene = Scene(geometry, materials, self.emit, self.sens)
+        if len(targets.kind) == 0:
+            return scene, None
         control = build_control(targets, self.sens, bool(self.nee_control), int(self.nee_batch))
-        return Scene(geometry, materials, self.emit, self.sens, targets, mirrors, zones, control)
+        return scene, NextEvents(targets, mirrors, zones, control)
 
-    def trace(self, seed: int, first: int, count: int, scene: Scene | None = None):
-        """Trace one chunk through ``scene`` (default: :meth:`records` now); returns (tally, tally_sq, counters,
-        nee_stats)."""
-        if scene is None:
-            scene = self.records()
+    def trace(self, seed: int, first: int, count: int, records=None):
+        """Trace one chunk through ``records`` (default: :meth:`records` now); returns (tally, tally_sq,
+        counters, nee_stats)."""
+        scene, nee = self.records() if records is None else records
         tallies, stats = new_tallies(self.n_rows, self.n_bands,
                                      len(self.materials) + len(self.emit_nee) + len(self.mir_point), N_COUNTERS)
         scratch = embree.new_scratch()
-        trace_chunk(scene, scratch.ctypes.data, seed, first, count, tallies, stats)
+        trace_chunk(scene, nee, scratch.ctypes.data, seed, first, count, tallies, stats)
         return tallies.tally, tallies.tally_sq, stats.counters, stats.nee_stats
 
 
@@ -569,7 +572,7 @@ def run(kscene: KernelScene, photons: int, seed: int = 1, threads: int | None = 
     if batch is not None and photons < 64 * batch:
         kscene.nee_batch = 1
     try:
-        scene = kscene.records()        # the kernel's records, once for the run
+        records = kscene.records()        # the kernel's records, once for the run
         with ThreadPoolExecutor(max_workers=threads) as pool:
             pending = []
             next_chunk = 0
@@ -577,7 +580,7 @@ def run(kscene: KernelScene, photons: int, seed: int = 1, threads: int | None = 
                 while next_chunk < n_chunks or pending:
                     while next_chunk < n_chunks and len(pending) < window:
                         first, count = chunk(next_chunk)
-                        pending.append((count, pool.submit(kscene.trace, seed, first, count, scene)))
+                        pending.append((count, pool.submit(kscene.trace, seed, first, count, records)))
                         next_chunk += 1
                     count, fut = pending[0]
                     part = fut.result()

@@ -110,8 +110,9 @@ def test_shadow_rays_reach_thin_sliver_triangles(tmp_path):
     sliver is ~1e-5·d off, so a shadow ray that stops only 2 offsets short of a point on it is blocked by the
     leaf itself (it was: every one of them, and next events from a grey floor lost ~30 % of its light).
     End to end, the floor's light on the leaf by next events agrees with counting."""
-    from lpy_light.kernel import embree, nee
-    from lpy_light.kernel.records import Photon, Stats, Vertex
+    from lpy_light.kernel import embree
+    from lpy_light.kernel.nee import next_event
+    from lpy_light.kernel.records import V_SURFACE, Photon, Stats, Vertex
     from lpy_light.kernel.rng import seed_stream
     from lpy_light.organs import organ_from_mesh
 
@@ -128,17 +129,17 @@ def test_shadow_rays_reach_thin_sliver_triangles(tmp_path):
     ks.set_organs([leaf], mats)
     ks.nee_sensors = False
     ks.retarget()
-    scene, scratch = ks.records(), embree.new_scratch()
-    tgt = scene.targets._replace(picks=1)
+    (scene, nee), scratch = ks.records(), embree.new_scratch()
+    tgt = nee.targets._replace(picks=1)
     state = np.zeros(1, np.uint64)
     photon = Photon(scratch.ctypes.data, state, np.ones(1), np.empty(1), np.empty(1), np.empty(8, np.int64),
                     np.empty((8, 1)), np.empty(0, np.int64))
     stats = np.zeros((len(ks.materials) + 1, 3))
     grey = ks.material_index(mats["grey"])
-    vertex = Vertex(900.0, 500.0, 0.0, 0.0, 0.0, 1.0, nee.V_SURFACE, grey, 1000.0, -1)
+    vertex = Vertex(900.0, 500.0, 0.0, 0.0, 0.0, 1.0, V_SURFACE, grey, 1000.0, -1)
     for i in range(200):
         seed_stream(state, 5, i)
-        nee.next_event(vertex, 0, -1, False, scene.geometry, scene.materials, scene.sensors, tgt, scene.zones,
+        next_event(vertex, 0, -1, False, scene.geometry, scene.materials, scene.sensors, tgt, nee.zones,
                        photon, Stats(np.zeros(6, np.int64), stats))
     assert stats[0, 0] == 200 and stats[0, 1] == 200, "shadow rays cast, unblocked: %s" % stats[0, :2]
 
