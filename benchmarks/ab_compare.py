@@ -79,10 +79,10 @@ def main(argv=None):
     trees = {"before": args.before.resolve(), "after": args.after.resolve()}
     got = {}
     with tempfile.TemporaryDirectory() as tmp:
-        for tree in trees.values():        # compile (or load) each kernel first: the timings are of runs
+        for label, tree in trees.items():   # compile (or load) each kernel first: the timings are of runs
             for est in ("weighted", "nee"):
                 _run(tree, [str(tree / ".venv/bin/lpy-light"), "run", "angers", "--photons", "1e4", "--estimator",
-                            est, "--quiet", "--out", str(Path(tmp) / "warm" / est)])
+                            est, "--quiet", "--out", str(Path(tmp) / "warm" / (label + est))])
         for rep in range(args.repeat):
             for label in (("before", "after") if rep % 2 == 0 else ("after", "before")):
                 for k, v in measure(trees[label], args.what, Path(tmp) / "out").items():
