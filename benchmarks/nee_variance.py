@@ -17,7 +17,7 @@ import time
 import numpy as np
 
 from lpy_light import simulate, validation
-from lpy_light.kernel.nee import near_discs
+from lpy_light.kernel.targets import near_discs
 
 
 def measure(ks, photons, seed=3, threads=2):
@@ -47,7 +47,7 @@ def main():
     n = int(args.photons)
     chamber = validation.load("angers")
     ks = validation.kernel_scene(chamber, "nee", args.threads)
-    y = ks.sens[1][:, 1]
+    y = ks.sens.center[:, 1]
     rel, sec = measure(ks, n, threads=args.threads)
     print(line("default", rel, sec, y), flush=True)
     print("median relative σ per row of y:", " ".join("%g: %.2f%%" % (v, 100 * np.median(rel[y == v]))
@@ -55,20 +55,19 @@ def main():
     share = np.sum(rel[y == 1830] ** 2) / np.sum(rel ** 2)
     print("the %d sensors of row y = 1830 hold %.0f %% of the summed relative variance" % ((y == 1830).sum(),
                                                                                           100 * share), flush=True)
-    near2 = ks.targets[8].copy()
+    default = ks.targets
     for radius in args.radii:
-        ks.targets = ks.targets[:8] + (np.maximum(near2, radius * radius),) + ks.targets[9:]
+        ks.targets = default._replace(near2=np.maximum(default.near2, radius * radius))
         rel, sec = measure(ks, n, threads=args.threads)
         print(line("exclusion radius %g mm" % radius, rel, sec, y), flush=True)
-    ks.targets = ks.targets[:8] + (near2,) + ks.targets[9:]
-    disc_radius = np.where(ks.targets[0] == 0, ks.sens[3][ks.targets[3]], 0.0)
-    default_lists = ks.targets[12:15]
+    ks.targets = default
+    disc_radius = np.where(default.kind == 0, ks.sens.radius[default.ref], 0.0)
     for factor in args.near:
-        lists = near_discs(ks.tri_verts, ks.targets[7], disc_radius, factor)
-        ks.targets = ks.targets[:12] + lists + ks.targets[15:]
+        start, near, r2 = near_discs(ks.tri_verts, default.center, disc_radius, factor)
+        ks.targets = default._replace(near_start=start, near_list=near, near_r2=r2)
         rel, sec = measure(ks, n, threads=args.threads)
         print(line("near discs at %g·a·√n" % factor, rel, sec, y), flush=True)
-    ks.targets = ks.targets[:12] + default_lists + ks.targets[15:]
+    ks.targets = default
     for k in args.images:
         ks = simulate.KernelScene(chamber, estimator="nee")
         ks.nee_images = k

@@ -32,5 +32,15 @@ def uniform(state):
     return float(_mix(state[0]) >> uint64(11)) * _INV_2_53
 
 
+@njit(inline="always", cache=True)
+def n_draws(mean, state):
+    """A random whole number whose mean is ``mean`` (≥ 0): int(mean), plus one with probability frac(mean);
+    no random number is used when ``mean`` is whole."""
+    n = int(mean)
+    if mean - n > 0.0 and uniform(state) < mean - n:
+        n += 1
+    return n
+
+
 def new_state():
     return np.zeros(1, dtype=np.uint64)

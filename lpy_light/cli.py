@@ -225,7 +225,7 @@ def _trace_and_write(args, path, chamber, kscene, measured, ref, ref_band, execu
     extra, calibration, comparison = _after_run(args, chamber, result, norm, measured, ref, ref_band)
     if args.estimator == "nee":
         extra["next_events"] = {"picks": kscene.nee_picks, "images": kscene.nee_images, "zones": kscene.nee_zones,
-                                "zones_built": int(len(kscene.zones[1])), "control": kscene.nee_control,
+                                "zones_built": int(len(kscene.zones.target_plane)), "control": kscene.nee_control,
                                 "mirror_planes": int(kscene.mir_on.sum()),
                                 "sources_off": [m.name for m, on in zip(kscene.materials, kscene.mat_nee) if not on]}
     if calibration is not None:

@@ -18,8 +18,13 @@ import numpy as np
 
 from .errors import InputError, ResourceError
 from .kernel import embree
-from .kernel.nee import build_targets, near_zones
-from .kernel.trace import C_BATCHES, N_COUNTERS, trace_chunk
+from .kernel.control import build_control
+from .kernel.records import (Emitters, Geometry, Materials, Mirrors, NextEvents, Scene, Sensors, Zones, f64, i32,
+                             i64, new_tallies, u8)
+from .kernel.tallies import C_BATCHES, N_COUNTERS
+from .kernel.targets import build_targets
+from .kernel.trace import trace_chunk
+from .kernel.zones import near_zones
 from .materials import SPECULAR_R, sampling_tables
 from .geometry import coplanar_partners, mirror_planes, partner_free_boxes, plane_ids, triangle_normals
 
@@ -252,12 +257,11 @@ class KernelScene:
                                         sensors=sensors.bounding_triangles() if len(sensors) else None)
         self.materials = list(chamber.materials)
         self._chamber_flush = sensors.flush_with(self._chamber_verts, self._chamber_normal)
-        self.sens = (np.ascontiguousarray(sensors.kind, dtype=np.int32), np.ascontiguousarray(sensors.center, float),
-                     np.ascontiguousarray(sensors.normal, float), np.ascontiguousarray(sensors.radius, float),
-                     np.ascontiguousarray(sensors.corners, float))
+        # the kernel's records of the sensors (their flush lists follow the organs: _assemble) and lamps
+        self.sens = Sensors(i32(sensors.kind), f64(sensors.center), f64(sensors.normal), f64(sensors.radius),
+                            f64(np.reshape(sensors.corners, (-1, 4, 3))), np.zeros(1, np.int64), np.zeros(1, np.int64))
         em = chamber.emitters
-        self.emit = (np.ascontiguousarray(em.kind, dtype=np.int32), np.ascontiguousarray(em.data, float),
-                     np.ascontiguousarray(em.cdf, float))
+        self.emit = Emitters(i32(em.kind), f64(np.reshape(em.data, (-1, 3, 3))), f64(em.cdf))
         self.n_sensors = len(sensors)
         self.n_chamber_receivers = len(chamber.receivers)
         self.n_bands = chamber.n_bands
@@ -306,8 +310,8 @@ class KernelScene:
         self.cop_start = np.ascontiguousarray(np.concatenate([start, np.full(len(verts), start[-1], np.int64)]))
         self.cop_list = np.ascontiguousarray(partners if len(partners) else np.zeros(1, np.int32))
         start, flush = self._chamber_flush            # sensors lying on chamber triangles (none on organs)
-        self.flush_start = np.ascontiguousarray(np.concatenate([start, np.full(len(verts), start[-1], np.int64)]))
-        self.flush_list = np.ascontiguousarray(flush if len(flush) else np.zeros(1, np.int64))
+        self.sens = self.sens._replace(flush_start=i64(np.concatenate([start, np.full(len(verts), start[-1], np.int64)])),
+                                       flush_list=i64(flush if len(flush) else np.zeros(1, np.int64)))
         self.tri_two_sided = np.ascontiguousarray(self.two_sided.astype(np.uint8))
         tv = self.tri_verts
         pad = self._cop_pad
@@ -331,24 +335,22 @@ class KernelScene:
             bound = np.where(sensors.kind == 0, sensors.radius, half_diag)
         else:
             bound = np.zeros(0)
-        targets, sensor_target, receiver_target = build_targets(
-            self.n_sensors, self.sens[0], sensors.area, sensors.center, bound, self.n_receivers, self.tri_receiver,
-            self.tri_verts, self.two_sided, self.n_sensors, self.n_sensors + self.n_receivers,
+        # a Targets record; its settings (picks, sources switched on) are filled in by records()
+        self.targets = tgt = build_targets(
+            self.sens, sensors.area, bound, self.n_receivers, self.tri_receiver, self.tri_verts, self.two_sided,
             sensors=self.nee_sensors, receivers=self.nee_receivers, receiver_mask=self.nee_receiver_mask)
-        # kernel order: tgt_kind .. tgt_near2, nee_tri, nee_cdf, tgt_img_near2, near_*, sensor_target, receiver_target
-        self.targets = tuple(targets) + (sensor_target, receiver_target)
         # zones beside discs for two-step next events (only with random picks, where discs have own events)
-        n_tgt = len(targets[0])
+        n_tgt = len(tgt.kind)
         disc_radius = np.zeros(n_tgt)
-        on = sensor_target >= 0
-        disc_radius[sensor_target[on]] = np.where(self.sens[0][on] == 0, self.sens[3][on], 0.0)
+        on = tgt.sensor_target >= 0
+        disc_radius[tgt.sensor_target[on]] = np.where(self.sens.kind[on] == 0, self.sens.radius[on], 0.0)
         disc_normal = np.zeros((n_tgt, 3))
-        disc_normal[sensor_target[on]] = self.sens[2][on]
+        disc_normal[tgt.sensor_target[on]] = self.sens.normal[on]
         if self.nee_sensors and 0 < self.nee_picks < n_tgt:
-            self.zones = near_zones(self.tri_verts, self.tri_pid, self.n_chamber_triangles, *targets[12:15],
-                                    targets[7], disc_radius, disc_normal)
+            self.zones = near_zones(self.tri_verts, self.tri_pid, self.n_chamber_triangles, tgt.near_start,
+                                    tgt.near_list, tgt.near_r2, tgt.center, disc_radius, disc_normal)
         else:
-            self.zones = (np.zeros((0, 14)), np.zeros((0, 2), np.int64), np.zeros(n_tgt + 1, np.int64))
+            self.zones = Zones(0.0, np.zeros((0, 14)), np.zeros((0, 2), np.int64), np.zeros(n_tgt + 1, np.int64))
 
     def prune_next_events(self, photons: int = 8192, max_share: float = 0.0, seed: int = 987654321,
                           threads=None, min_plane_share: float = 0.01, min_rays: int = 256, keep=()) -> dict:
@@ -467,26 +469,40 @@ class KernelScene:
         cdf[-1] = 1.0 + 1e-12
         return on, cdf, 1.0 / p
 
-    def trace(self, seed: int, first: int, count: int):
-        """Trace one chunk; returns (tally, tally_sq, counters, nee_stats)."""
-        out = (np.zeros((self.n_rows, self.n_bands)), np.zeros((self.n_rows, self.n_bands, self.n_bands)),
-               np.zeros(N_COUNTERS, np.int64),
-               np.zeros((len(self.materials) + len(self.emit_nee) + len(self.mir_point), 3)))
-        scratch = embree.new_scratch()
+    def records(self):
+        """The kernel's records of this scene as it stands (:mod:`lpy_light.kernel.records`), with the current
+        settings (``nee_*``, the sources and mirror planes switched on): ``(Scene, NextEvents or None)``, None
+        where next events have no target (``weighted``, ``analog``).  Built once per run."""
         phys = self.chamber.physics
-        trace_chunk(self.scene.handle, self.intersect, scratch.ctypes.data, seed, first, count,
-                    self.geom_offset, self.tri_normal, self.tri_mat, self.tri_receiver,
-                    self.mat_prob, self.mat_cum, self.band_pass, self.mat_phong, *self.sens, *self.emit,
-                    phys.max_depth, phys.offset, self.n_receivers, self.estimator != "analog",
-                    self.occluded, self.nee_sensors, self.nee_receivers, *self.targets, self.tri_verts,
-                    self.mat_nee, self.emit_nee, self.nee_picks, self.cop_start, self.cop_list, self.cop_box,
-                    self.cop_free, self.tri_two_sided,
-                    float(self.nee_images) if self.nee_sensors or self.nee_receivers else 0.0, self.tri_plane, self.mir_point, self.mir_normal,
-                    *self._mirror_draw(), self.mir_on, self.mir_box, self.mir_one_sided, bool(self.nee_control),
-                    int(self.nee_batch),
-                    float(self.nee_zones) if self.nee_sensors else 0.0, *self.zones, self.tri_pid,
-                    self.flush_start, self.flush_list, *out)
-        return out
+        nee = self.nee_sensors or self.nee_receivers
+        geometry = Geometry(self.scene.handle, self.intersect, self.occluded, float(phys.offset), i64(self.geom_offset),
+                            f64(self.tri_verts), f64(self.tri_normal), i32(self.tri_mat), i32(self.tri_receiver),
+                            self.tri_two_sided, i32(self.tri_plane), i32(self.tri_pid), i64(self.cop_start),
+                            i32(self.cop_list), f64(self.cop_box), f64(self.cop_free), int(self.n_receivers))
+        materials = Materials(f64(self.mat_prob), f64(self.mat_cum), i64(self.band_pass), f64(self.mat_phong),
+                              self.estimator != "analog", int(phys.max_depth))
+        targets = self.targets._replace(on_sensors=bool(self.nee_sensors), on_receivers=bool(self.nee_receivers),
+                                        picks=int(self.nee_picks), from_material=u8(self.mat_nee),
+                                        from_emitter=u8(self.emit_nee))
+        plane, cdf, inv_p = self._mirror_draw()
+        mirrors = Mirrors(float(self.nee_images) if nee else 0.0, i32(plane), f64(cdf), f64(inv_p), u8(self.mir_on),
+                          f64(self.mir_point), f64(self.mir_normal), f64(self.mir_box), u8(self.mir_one_sided))
+        zones = self.zones._replace(picks=float(self.nee_zones) if self.nee_sensors else 0.0)
+        scene = Scene(geometry, materials, self.emit, self.sens)
+        if len(targets.kind) == 0:
+            return scene, None
+        control = build_control(targets, self.sens, bool(self.nee_control), int(self.nee_batch))
+        return scene, NextEvents(targets, mirrors, zones, control)
+
+    def trace(self, seed: int, first: int, count: int, records=None):
+        """Trace one chunk through ``records`` (default: :meth:`records` now); returns (tally, tally_sq,
+        counters, nee_stats)."""
+        scene, nee = self.records() if records is None else records
+        tallies, stats = new_tallies(self.n_rows, self.n_bands,
+                                     len(self.materials) + len(self.emit_nee) + len(self.mir_point), N_COUNTERS)
+        scratch = embree.new_scratch()
+        trace_chunk(scene, nee, scratch.ctypes.data, seed, first, count, tallies, stats)
+        return tallies.tally, tallies.tally_sq, stats.counters, stats.nee_stats
 
 
 def default_threads() -> int:
@@ -498,7 +514,7 @@ def effective_samples(n, counters, n_rows, n_sensors) -> np.ndarray:
 
     Every row sums per-photon products, so N photons are N samples -- except the sensor rows of a
     ``nee`` run with the control variate, whose products are taken per batch of photons
-    (:func:`lpy_light.kernel.trace._control_products`): ``counters[C_BATCHES]`` samples there.
+    (:func:`lpy_light.kernel.control.control_products`): ``counters[C_BATCHES]`` samples there.
     """
     m = np.full(n_rows, float(n))
     batches = int(counters[C_BATCHES]) if len(counters) > C_BATCHES else 0
@@ -643,7 +659,7 @@ def run(kscene: KernelScene, photons: int, seed: int = 1, threads: int | None = 
     # (sums, photons) change together in one assignment, so that an interrupt (KeyboardInterrupt)
     # arriving anywhere leaves the sums of exactly ``done`` photons: a correctly normalised prefix
     state = (acc, 0)
-    # the control variate's products are taken per batch of nee_batch photons (kernel.trace._control_products);
+    # the control variate's products are taken per batch of nee_batch photons (kernel.control.control_products);
     # a run too short for 64 batches takes them per photon, so that its σ rests on enough samples
     batch = getattr(kscene, "nee_batch", None)
     if batch is not None and photons < 64 * batch:

@@ -8,7 +8,7 @@ from numba import njit
 from lpy_light import simulate
 from lpy_light.kernel.nee import disc_point_by_solid_angle
 from lpy_light.kernel.rng import seed_stream, uniform
-from lpy_light.kernel.trace import C_BATCHES
+from lpy_light.kernel.tallies import C_BATCHES
 from lpy_light.scene import load_scene
 from scenes import box, lamp_rectangle, rad_polygon, rectangle_to_disc_fraction, write_scene
 
@@ -110,7 +110,9 @@ def test_shadow_rays_reach_thin_sliver_triangles(tmp_path):
     sliver is ~1e-5·d off, so a shadow ray that stops only 2 offsets short of a point on it is blocked by the
     leaf itself (it was: every one of them, and next events from a grey floor lost ~30 % of its light).
     End to end, the floor's light on the leaf by next events agrees with counting."""
-    from lpy_light.kernel import embree, nee
+    from lpy_light.kernel import embree
+    from lpy_light.kernel.nee import next_event
+    from lpy_light.kernel.records import V_SURFACE, Photon, Stats, Vertex
     from lpy_light.kernel.rng import seed_stream
     from lpy_light.organs import organ_from_mesh
 
@@ -127,17 +129,18 @@ def test_shadow_rays_reach_thin_sliver_triangles(tmp_path):
     ks.set_organs([leaf], mats)
     ks.nee_sensors = False
     ks.retarget()
-    tg, state, scratch = ks.targets, np.zeros(1, np.uint64), embree.new_scratch()
-    counters, stats = np.zeros(5, np.int64), np.zeros((len(ks.materials) + 1, 3))
+    (scene, nee), scratch = ks.records(), embree.new_scratch()
+    tgt = nee.targets._replace(picks=1)
+    state = np.zeros(1, np.uint64)
+    photon = Photon(scratch.ctypes.data, state, np.ones(1), np.empty(1), np.empty(1), np.empty(8, np.int64),
+                    np.empty((8, 1)), np.empty(0, np.int64))
+    stats = np.zeros((len(ks.materials) + 1, 3))
     grey = ks.material_index(mats["grey"])
+    vertex = Vertex(900.0, 500.0, 0.0, 0.0, 0.0, 1.0, V_SURFACE, grey, 1000.0, -1)
     for i in range(200):
         seed_stream(state, 5, i)
-        nee.next_event(900.0, 500.0, 0.0, 0.0, 0.0, 1.0, nee.V_SURFACE, grey, 0, np.ones(1), state, ks.scene.handle,
-                       ks.occluded, scratch.ctypes.data, chamber.physics.offset, *tg[:9], *ks.sens[1:5], tg[9], tg[10],
-                       ks.tri_verts, ks.tri_normal, ks.tri_mat, ks.mat_prob, np.empty(1), np.empty(8, np.int64),
-                       np.empty((8, 1)), counters, stats, 1, 1000.0, -1, *tg[12:15], False, -1,
-                       ks.zones[2], ks.zones[1], ks.intersect, ks.geom_offset, ks.tri_receiver, ks.cop_start,
-                       ks.cop_list, ks.cop_box, ks.cop_free, ks.tri_two_sided)
+        next_event(vertex, 0, -1, False, scene.geometry, scene.materials, scene.sensors, tgt, nee.zones,
+                       photon, Stats(np.zeros(6, np.int64), stats))
     assert stats[0, 0] == 200 and stats[0, 1] == 200, "shadow rays cast, unblocked: %s" % stats[0, :2]
 
     ks.mat_nee[:] = 1
@@ -183,14 +186,21 @@ def test_mirror_planes_are_flat_specular_surfaces():
 
 # --- discs drawn by solid angle ----------------------------------------------------------------------------
 
-@njit(cache=False)     # not cached: numba would not see edits to the kernel functions it calls
 def _disc_samples(v, center, normal, radius, n, seed):
+    """n points drawn on disc 0 (centre (1, 3), normal (1, 3), radius (1,)) as seen from v: (n, 4) x, y, z, factor."""
+    from lpy_light.kernel.records import Sensors
+    sens = Sensors(np.zeros(len(radius), np.int32), np.asarray(center, float), np.asarray(normal, float),
+                   np.asarray(radius, float), np.zeros((len(radius), 4, 3)), np.zeros(1, np.int64), np.zeros(1, np.int64))
+    return _disc_samples_jit(v, sens, n, seed)
+
+
+@njit(cache=False)     # not cached: numba would not see edits to the kernel functions it calls
+def _disc_samples_jit(v, sens, n, seed):
     state = np.zeros(1, dtype=np.uint64)
     seed_stream(state, seed, 0)
     out = np.empty((n, 4))
     for i in range(n):
-        x, y, z, f = disc_point_by_solid_angle(v[0], v[1], v[2], 0, uniform(state), uniform(state),
-                                               center, normal, radius)
+        x, y, z, f = disc_point_by_solid_angle(v[0], v[1], v[2], 0, uniform(state), uniform(state), sens)
         out[i, 0], out[i, 1], out[i, 2], out[i, 3] = x, y, z, f
     return out
 
@@ -247,7 +257,7 @@ def test_disc_sampler_grazing_the_plane_stays_finite(h):
 def test_near_disc_zones_stay_small_in_a_dense_grid():
     """a·√n alone would make a vertex amid 2500 discs (radius 5, 20 mm apart) serve ~150 own events; the
     zone is capped at 1.5 spacings.  Triangles list only the discs whose zone reaches their bounding box."""
-    from lpy_light.kernel.nee import near_discs
+    from lpy_light.kernel.targets import near_discs
     g = np.arange(50) * 20.0
     x, y = np.meshgrid(g, g)
     center = np.c_[x.ravel(), y.ravel(), np.full(x.size, 100.0)]
@@ -375,7 +385,7 @@ def test_zones_beside_discs_are_built_where_a_disc_is_near_a_plane(tmp_path):
     sensors = WALL_DISCS + [(500, 989, 800, 10, 0, -1, 0)]      # faces away from the wall
     chamber = load_scene(write_scene(tmp_path, WALL_ROOM, sensors))
     ks = simulate.KernelScene(chamber, "nee")
-    zone_f, zone_i, zone_start = ks.zones
+    zone_f, zone_i, zone_start = ks.zones.frame, ks.zones.target_plane, ks.zones.start
     assert sorted(set(zone_i[:, 0].tolist())) == list(range(6))
     assert np.all(np.bincount(zone_i[:, 0], minlength=11)[:6] == 2)
     assert np.allclose(np.abs(zone_f[:, 4]), 1.0)             # planes of normal ±y

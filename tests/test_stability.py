@@ -20,7 +20,7 @@ import pytest
 
 from lpy_light import geometry as geo
 from lpy_light import simulate
-from lpy_light.kernel.trace import N_COUNTERS
+from lpy_light.kernel.tallies import N_COUNTERS
 from lpy_light.materials import Material
 from lpy_light.organs import organ_from_mesh, plant_material
 from lpy_light.scene import Physics, load_scene
@@ -699,7 +699,10 @@ class _FakeScene:
         stats = np.array([[count, count // 2, 0.5 * count * (1 + u)]], float)
         return t, sq, counters, stats
 
-    def trace(self, seed, first, count):
+    def records(self):
+        return None
+
+    def trace(self, seed, first, count, scene=None):
         self.calls += 1
         return self.values(first, count)
 

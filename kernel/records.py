@@ -1,0 +1,224 @@
+"""What the photon kernel reads and writes, as named records of arrays.
+
+Every kernel function takes the few records it reads instead of dozens of loose arrays: a record is a
+named tuple of numpy arrays and numbers, which numba compiles to plain loads (``geo.verts[tri, 0, 0]`` costs
+what a loose ``tri_verts[tri, 0, 0]`` did).  A record's fields are one concept each, named from the
+physics; two arrays of the same shape cannot be swapped by position.  ``lpy_light.simulate.KernelScene``
+builds the scene's records once per run (``KernelScene.records``), the kernel allocates one thread's work
+arrays per chunk (:class:`Photon`, :class:`Accumulator`, :class:`ControlWork`), and the caller owns the
+:class:`Tallies` and :class:`Stats` a chunk adds to.
+
+Sizes: T triangles, M materials, B bands, P paths per photon (1, or B for ``analog``), S transparent
+sensors, R receivers (solid sensors and organs), E emitter elements, n next-event targets, Q mirror
+planes, Z zones, K tally rows.  Lengths in scene units (Angers: mm), directions unit vectors, weights in
+photons (a photon leaves its lamp with weight 1 in each band).
+"""
+from collections import namedtuple
+
+import numpy as np
+
+# scattering events, in the order their probabilities are accumulated (materials' event tables)
+DIFFUSE_R, SPECULAR_R, DIFFUSE_T, SPECULAR_T, ABSORB = 0, 1, 2, 3, 4
+N_EVENTS = 5
+
+# emitter element kinds (lpy_light.emitters)
+EMIT_LINE, EMIT_TRIANGLE, EMIT_CYLINDER, EMIT_POINT, EMIT_SPHERE = 0, 1, 2, 3, 4
+
+# transparent sensor kinds (lpy_light.sensors)
+SENSOR_DISC, SENSOR_QUAD = 0, 1
+
+# next-event target kinds (MESH2: a two-sided mesh, an organ; MESH1: one-sided, a solid sensor)
+T_DISC, T_QUAD, T_MESH2, T_MESH1 = 0, 1, 2, 3
+
+# how the light leaves a next-event vertex: an isotropic line or point lamp, a Lambertian emitter, a surface
+V_ISOTROPIC, V_LAMBERT, V_SURFACE = 0, 1, 2
+
+
+Geometry = namedtuple("Geometry", [
+    "scene",         # int: the Embree scene's handle (kernel.embree.EmbreeScene.handle)
+    "intersect",     # int: address of rtcIntersect1 (closest hit; the filters record sensor crossings)
+    "occluded",      # int: address of rtcOccluded1 (shadow rays)
+    "offset_rel",    # float: a new ray starts offset_rel · (max(|v_i|, |p|) + |o|) off the surface it leaves
+                     # (v_i the triangle's vertices, p the hit, o the ray's origin; ∞-norms): Embree's float32
+                     # round-off a few ulps deep (docs/stability.md)
+    "geom_offset",   # (4,) int64: kernel triangle = Embree primID + geom_offset[geomID]
+    "verts",         # (T, 3, 3) float64: vertices
+    "normal",        # (T, 3) float64: unit right-hand-rule normals
+    "material",      # (T, 2) int32: material seen from the front, from the back
+    "receiver",      # (T,) int32: receiver of each triangle, or -1
+    "two_sided",     # (T,) uint8: seen from both sides
+    "mirror_plane",  # (T,) int32: the flat perfect mirror (Mirrors) each triangle belongs to, or -1
+    "plane_id",      # (T,) int32: each chamber triangle's plane (lpy_light.geometry.plane_ids), -1 for organs
+    "cop_start",     # (T + 1,) int64, and
+    "cop_list",      # int32: the coplanar partners of triangle j, cop_list[cop_start[j]:cop_start[j + 1]]
+                     # (lpy_light.geometry.coplanar_partners); none: no random pick between coincident surfaces
+    "cop_box",       # (T, 2, 3) float64: each triangle's bounding box, slightly widened (quick rejects)
+    "cop_free",      # (T, 2, 3) float64: a box where none of the triangle's partners reaches
+    "n_receivers",   # int: R
+])
+
+Materials = namedtuple("Materials", [
+    "prob",          # (M, 5, B) float64: probability of each scattering event per band
+    "cum",           # (M, 5, P) float64: cumulative probabilities q of the event drawn on each path
+                     # (lpy_light.materials.sampling_tables)
+    "band_pass",     # (B,) int64: the path that carries each band (its weight starts at 1 there, 0 elsewhere)
+    "phong",         # (M,) float64: Phong exponent of the specular lobe (inf: a perfect mirror)
+    "expected_absorption",   # bool: estimators weighted and nee deposit w·P_abs at each hit; analog draws it
+    "max_depth",     # int: scattering events before a photon is cut
+])
+
+Emitters = namedtuple("Emitters", [
+    "kind",          # (E,) int32: EMIT_*
+    "data",          # (E, 3, 3) float64: the element (end points and radius, a triangle, a centre and radius)
+    "cdf",           # (E,) float64: cumulative share of the emitted power
+])
+
+Sensors = namedtuple("Sensors", [
+    "kind",          # (S,) int32: SENSOR_DISC or SENSOR_QUAD
+    "center",        # (S, 3) float64
+    "normal",        # (S, 3) float64: unit; a sensor counts crossings from its front (against the normal)
+    "radius",        # (S,) float64: discs' radii
+    "corners",       # (S, 4, 3) float64: quads' corners, counter-clockwise seen from the front
+    "flush_start",   # (T + 1,) int64, and
+    "flush_list",    # int64: the sensors lying on each triangle's plane (Sensors.flush_with), tested at every
+                     # hit on it (Embree's float32 would report them or not as its rounding falls)
+])
+
+Targets = namedtuple("Targets", [
+    "on_sensors",    # bool: sensors are next-event targets (their counted crossings then skip what is covered)
+    "on_receivers",  # bool: receivers are
+    "picks",         # int: targets drawn per next event (0: every target at every vertex)
+    "from_material",  # (M,) uint8: next events from this material's surfaces (0: its segments are counted)
+    "from_emitter",  # (E,) uint8: next events from this emitter element
+    "kind",          # (n,) int32: T_DISC, T_QUAD, T_MESH2, T_MESH1; sensor targets first
+    "row",           # (n,) int64: tally row of the light it gets (a sensor's, or a receiver's incident row)
+    "abs_row",       # (n,) int64: tally row of what it absorbs (receivers), or -1
+    "ref",           # (n,) int64: the sensor or receiver it stands for
+    "first",         # (n,) int64: a mesh target's triangles are tri[first : first + count]
+    "count",         # (n,) int64
+    "area",          # (n,) float64: area (one side)
+    "center",        # (n, 3) float64: centre (meshes: of the bounding box)
+    "near2",         # (n,) float64: exclusion radius² of next events (0 for discs: drawn by solid angle)
+    "img_near2",     # (n,) float64: the same for next events through a mirror
+    "tri",           # int64: mesh targets' triangles, and
+    "tri_cdf",       # float64: their cumulative areas within each target (points drawn by area)
+    "near_start",    # (T + 1,) int64, and
+    "near_list",     # int64: the discs near each triangle, which get an event of their own (kernel.nee.near_discs)
+    "near_r2",       # (n,) float64: their near radius²
+    "sensor_target",  # (S,) int64: each sensor's target, or -1
+    "receiver_target",  # (R,) int64: each receiver's target, or -1
+])
+
+Mirrors = namedtuple("Mirrors", [
+    "picks",         # float: next events through a mirror per next-event vertex, on average (0: none)
+    "plane",         # int32: the planes in use, drawn with
+    "cdf",           # float64: cumulative probabilities, and weighted by
+    "inv_p",         # float64: 1 / their probability
+    "on",            # (Q,) uint8: the planes in use, as flags
+    "point",         # (Q, 3) float64: a point of each plane
+    "normal",        # (Q, 3) float64: its unit normal
+    "box",           # (Q, 2, 3) float64: the bounds of its triangles, slightly widened
+    "one_sided",     # (Q,) uint8: reflects from its front only
+])
+
+Zones = namedtuple("Zones", [
+    "picks",         # float: two-step next events through a zone per next-event vertex, on average (0: none)
+    "frame",         # (Z, 14) float64: foot c' of the disc's centre on the plane (3), the plane's unit normal
+                     # (3), two unit tangents e1, e2 (6), h_s², L = ln(1 + ρ²/h_s²) (kernel.nee.near_zones)
+    "target_plane",  # (Z, 2) int64: the disc target and the plane id of each zone
+    "start",         # (n + 1,) int64: zones of target t are start[t] : start[t + 1]
+])
+
+Control = namedtuple("Control", [
+    "on",            # bool: the control variate (nee with sensor targets and random picks)
+    "batch",         # int: photons per batch of its products between bands (1: per photon)
+    "row",           # (c,) int64: tally rows of the c sensor targets it covers (the first c targets)
+    "center",        # (3, c) float32: their centres (float32: γ's loop runs 16 wide)
+    "normal",        # (3, c) float32: their unit normals
+    "area",          # (c,) float32
+    "thr",           # (2, c) float32: radius² within which a vertex makes no control deposit for a target
+                     # (row 0: elsewhere, row 1: on a triangle with near discs)
+    "runs",          # (r, 2) int64: runs of targets on one plane with one normal: first, end
+    "plane",         # (r,) float32: each run's plane offset n·c
+])
+
+# what every run traces through
+Scene = namedtuple("Scene", ["geometry", "materials", "emitters", "sensors"])
+# next events (estimator nee; None where there is no target: their code is then not compiled)
+NextEvents = namedtuple("NextEvents", ["targets", "mirrors", "zones", "control"])
+
+Tallies = namedtuple("Tallies", [
+    "tally",         # (K, B) float64: sums of per-photon contributions; rows (kernel.tallies): S sensor
+                     # crossings, R receivers' incident, R receivers' absorbed, then the fates: absorbed per
+                     # material (M), escaped, cut at max_depth, lost, and each photon's total deposit
+    "tally_sq",      # (K, B, B) float64: sums of products between bands of per-photon contributions
+])
+
+Stats = namedtuple("Stats", [
+    "counters",      # (N_COUNTERS,) int64: rays, candidate overflows, scratch flushes, lost, shadow rays,
+                     # control-variate batches (kernel.tallies)
+    "nee_stats",     # (M + E + Q, 3) float64: shadow rays cast, unblocked, weight deposited, per material,
+                     # emitter element, then mirror plane (image events)
+])
+
+# one thread's work arrays, allocated per chunk by kernel.trace.trace_chunk
+Photon = namedtuple("Photon", [
+    "scratch",       # int: address of this thread's Embree block (kernel.embree.new_scratch)
+    "state",         # (1,) uint64: the photon's random stream (kernel.rng)
+    "w",             # (B,) float64: the photon's weights
+    "dep",           # (B,) float64: what it deposits at a hit
+    "contrib",       # (B,) float64: one next event's deposit
+    "out_k",         # int64: tally rows of a vertex's next-event deposits, and
+    "out_w",         # (., B) float64: the deposits
+    "seen",          # int64: sensors already tested on the current segment
+])
+
+Accumulator = namedtuple("Accumulator", [
+    "acc",           # (K, B) float64: this photon's sum per tally row
+    "touched",       # (K,) uint8: rows it touched, as flags, and
+    "rows",          # (K,) int64: in order
+    "tot",           # (B,) float64: its total deposit
+])
+
+ControlWork = namedtuple("ControlWork", [
+    "batch",         # (B, c) float64: a batch's deposits on the control variate's sensor targets,
+    "tally",         # (B, c) float64: the chunk's sums of them,
+    "sq",            # (B, B, c) float64: and of their products between bands (b <= b2)
+    "g_r",           # (c,) float32: γ towards the side a vertex reflects to, and
+    "g_t",           # (c,) float32: transmits to (scratch of kernel.control.control_deposits)
+])
+
+Vertex = namedtuple("Vertex", [
+    "x", "y", "z",   # where the photon leaves (a lamp or a surface hit)
+    "nx", "ny", "nz",  # unit normal: the emitter's, or the surface's on the side the photon arrived from
+    "mode",          # V_ISOTROPIC, V_LAMBERT or V_SURFACE
+    "material",      # the surface's material (V_SURFACE), else 0
+    "scale",         # round-off scale: shadow rays start and stop offset_rel · max(|v|, scale) off surfaces
+    "tri",           # its triangle, -1 on a lamp
+])
+
+
+def i32(a):
+    return np.ascontiguousarray(a, dtype=np.int32)
+
+
+def i64(a):
+    return np.ascontiguousarray(a, dtype=np.int64)
+
+
+def u8(a):
+    return np.ascontiguousarray(a, dtype=np.uint8)
+
+
+def f32(a):
+    return np.ascontiguousarray(a, dtype=np.float32)
+
+
+def f64(a):
+    return np.ascontiguousarray(a, dtype=np.float64)
+
+
+def new_tallies(n_rows: int, n_bands: int, n_stats: int, n_counters: int):
+    """Zeroed :class:`Tallies` and :class:`Stats` for one chunk."""
+    return (Tallies(np.zeros((n_rows, n_bands)), np.zeros((n_rows, n_bands, n_bands))),
+            Stats(np.zeros(n_counters, np.int64), np.zeros((n_stats, 3))))

@@ -1,0 +1,132 @@
+"""Next-event targets: which sensors and receivers next events aim at, as arrays for the kernel.
+
+numpy, run once per scene or change of organs (``lpy_light.simulate.KernelScene.retarget``), outside the
+hot loop.  Targets are transparent sensors (discs and quads; sensor targets come first) and receivers
+(meshes: organs, two-sided, and solid sensors, one-sided); each gets the tally row of its light, an
+exclusion radius within which a vertex counts its crossings instead (1/d² is heavy-tailed near a quad or a
+mesh), and, for discs, the triangles near enough to give the disc an event of its own (:func:`near_discs`).
+Lengths in scene units, areas in scene units².
+"""
+import math
+
+import numpy as np
+
+from .nee import NEAR, NEAR_FLOOR, NEAR_PICKED
+from .records import T_DISC, T_MESH1, T_MESH2, T_QUAD, Targets, f64, i64
+
+
+def build_targets(sens, sens_area, sens_bound, n_receivers_rows, tri_receiver, tri_verts, tri_two_sided,
+                  sensors=True, receivers=True, receiver_mask=None):
+    """The next-event targets (:class:`~kernel.records.Targets`) of a scene; numpy, outside the hot loop.
+
+    ``sens`` the sensors' :class:`~kernel.records.Sensors` (S of them), ``sens_area`` (S,) their areas and
+    ``sens_bound`` (S,) their bounding radii about their centres; ``n_receivers_rows`` R;
+    ``tri_receiver`` (T,) receiver index per kernel triangle or -1; ``tri_verts`` (T, 3, 3);
+    ``tri_two_sided`` (T,) bool.  Receiver r's incident row is S + r and its absorbed row S + R + r
+    (:mod:`kernel.tallies`).  ``sensors``, ``receivers``: whether they are targets; ``receiver_mask`` (R,)
+    bool or None: only these receivers are targets (the others are still tallied, by counting).
+
+    Returns a :class:`~kernel.records.Targets` whose settings (``on_sensors``, ``on_receivers``: the
+    flags given; ``picks``, ``from_material``, ``from_emitter``: 0 and empty) are the caller's to set.
+    """
+    n_sensors = len(sens.kind)
+    sens_kind, sens_center = sens.kind, sens.center
+    receiver_row0, absorbed_row0 = n_sensors, n_sensors + n_receivers_rows
+    kind, row, abs_row, ref, first, count, area, center, near2 = [], [], [], [], [], [], [], [], []
+    img_near2 = []
+    sensor_target = np.full(n_sensors, -1, np.int64)
+    receiver_target = np.full(n_receivers_rows, -1, np.int64)
+    nee_tri, nee_cdf = [], []
+    if sensors:
+        for s in range(n_sensors):
+            kind.append(T_DISC if sens_kind[s] == 0 else T_QUAD)
+            row.append(s)
+            abs_row.append(-1)
+            ref.append(s)
+            first.append(0)
+            count.append(0)
+            area.append(float(sens_area[s]))
+            center.append(sens_center[s])
+            # discs are sampled by solid angle (bounded next events): no exclusion zone, except through mirrors
+            img_near2.append(float((NEAR * sens_bound[s]) ** 2))
+            near2.append(0.0 if sens_kind[s] == 0 else img_near2[-1])
+            sensor_target[s] = len(kind) - 1
+    if receivers and n_receivers_rows:
+        tri_area = 0.5 * np.linalg.norm(np.cross(tri_verts[:, 1] - tri_verts[:, 0], tri_verts[:, 2] - tri_verts[:, 0]),
+                                        axis=1)
+        order = np.argsort(tri_receiver, kind="stable")
+        recv_sorted = tri_receiver[order]
+        for r in range(n_receivers_rows):
+            lo, hi = np.searchsorted(recv_sorted, r), np.searchsorted(recv_sorted, r, side="right")
+            if receiver_mask is not None and not receiver_mask[r]:
+                continue
+            tris = order[lo:hi]
+            a = tri_area[tris]
+            total = a.sum()
+            if len(tris) == 0 or not total > 0:
+                continue
+            kind.append(T_MESH2 if tri_two_sided[tris].all() else T_MESH1)
+            row.append(receiver_row0 + r)
+            abs_row.append(absorbed_row0 + r)
+            ref.append(r)
+            first.append(len(nee_tri))
+            count.append(len(tris))
+            area.append(float(total))
+            cdf = np.cumsum(a) / total
+            cdf[-1] = 1.0 + 1e-12
+            nee_tri.extend(tris.tolist())
+            nee_cdf.extend(cdf.tolist())
+            pts = tri_verts[tris].reshape(-1, 3)
+            lo_, hi_ = pts.min(axis=0), pts.max(axis=0)
+            center.append((lo_ + hi_) / 2)
+            near2.append(float((NEAR * np.linalg.norm(hi_ - lo_) / 2) ** 2))
+            img_near2.append(near2[-1])
+            receiver_target[r] = len(kind) - 1
+    center = f64(np.reshape(center, (-1, 3)))
+    disc_radius = np.zeros(len(kind))
+    for s in range(n_sensors):
+        if sensor_target[s] >= 0 and sens_kind[s] == 0:
+            disc_radius[sensor_target[s]] = sens_bound[s]
+    near_start, near_list, near_r2 = near_discs(tri_verts, center, disc_radius)
+    return Targets(bool(sensors), bool(receivers), 0, np.zeros(0, np.uint8), np.zeros(0, np.uint8),
+                   np.ascontiguousarray(kind, dtype=np.int32), i64(row), i64(abs_row), i64(ref), i64(first),
+                   i64(count), f64(area), center, f64(near2), f64(img_near2),
+                   i64(nee_tri if nee_tri else np.zeros(0)), f64(nee_cdf if nee_cdf else np.zeros(0)),
+                   near_start, near_list, near_r2, sensor_target, receiver_target)
+
+
+def near_discs(tri_verts, center, disc_radius, factor=NEAR_PICKED):
+    """Which disc targets are *near* a vertex, for :func:`kernel.nee.next_event`'s own events, and on which triangles.
+
+    A random pick among n targets deposits n times a target's expected value; near a disc (solid angle
+    ≳ 1/n) that is a large deposit made rarely, worse than an event of its own.  Disc t is near v when
+    |v − c_t| < ``factor`` · a_t · √n (a_t its radius): there the disc's solid angle exceeds about
+    π / (factor² · n).  That radius is capped at 1.5 × the distance from c_t to the nearest other target,
+    so that a vertex amid a dense grid of many discs makes a handful of own events (≲ 10 in a plane), not
+    hundreds -- but never below :data:`NEAR_FLOOR` · a_t: closer than that the control variate's point
+    value (∝ area / distance²) is no approximation of the disc (a disc wider than the room beside a small
+    one gave picks of ±10⁴ times the light, a 500 % σ).  ``tri_verts`` (T, 3, 3); ``center`` (n, 3); ``disc_radius`` (n,), 0 for targets that
+    are not discs.  Returns ``near_start`` (T + 1,) int64, ``near_list`` int64 (the discs whose near zone
+    meets each triangle's bounding box, a superset of those near any of its points) and ``near_r2`` (n,).
+    """
+    n = len(center)
+    radius = factor * disc_radius * math.sqrt(max(n, 1))
+    for t in np.flatnonzero(radius > 0):
+        gap = center - center[t]
+        d2 = np.einsum("ij,ij->i", gap, gap)
+        d2[t] = np.inf
+        radius[t] = max(min(radius[t], 1.5 * math.sqrt(d2.min())), NEAR_FLOOR * disc_radius[t])
+    near_r2 = np.ascontiguousarray(radius ** 2, dtype=np.float64)
+    lo, hi = tri_verts.min(axis=1), tri_verts.max(axis=1)
+    pairs_tri, pairs_t = [], []
+    for t in np.flatnonzero(near_r2 > 0):
+        gap = np.clip(center[t], lo, hi) - center[t]
+        tris = np.flatnonzero(np.einsum("ij,ij->i", gap, gap) < near_r2[t])
+        pairs_tri.append(tris)
+        pairs_t.append(np.full(len(tris), t))
+    tris = np.concatenate(pairs_tri) if pairs_tri else np.zeros(0, np.int64)
+    ts = np.concatenate(pairs_t) if pairs_t else np.zeros(0, np.int64)
+    order = np.argsort(tris, kind="stable")
+    near_start = np.zeros(len(tri_verts) + 1, np.int64)
+    np.cumsum(np.bincount(tris, minlength=len(tri_verts)), out=near_start[1:])
+    return near_start, np.ascontiguousarray(ts[order], dtype=np.int64), near_r2

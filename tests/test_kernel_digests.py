@@ -1,0 +1,156 @@
+"""The kernel's numbers, pinned bit for bit: a change meant to leave the physics alone (a refactor, a
+faster loop) must leave every tally exactly as it was.
+
+Each case traces a few photons with a fixed seed through a path of the kernel and digests the raw float64
+arrays it returns (sums, sums of products between bands, counters, next-event statistics; for the rose,
+each organ's numbers): sha256 of their bytes, so no float formatting is involved.  The cases cover the
+Angers chamber with each estimator (``weighted``, ``nee`` with its pilot and the control variate, image and
+zone events; ``analog``), the 12-band chamber (``nee``, and ``analog``: one path per band), a small room
+with every emitter kind (line, point, polygon, cylinder, sphere), disc and quad sensors, a solid sensor,
+a mirror and a Phong lobe, and the procedural rose of ``benchmarks/rose.py`` through
+:class:`~lpy_light.light.LightModel` (organs from meshes, next events aimed at leaves and buds).
+
+Results do not depend on the number of threads (by design), but Embree's float32 arithmetic may differ
+between CPU families: the digests are those of the CI's kind of machine (x86-64).  What breaks this test:
+any change to the arithmetic or to the order of random numbers in the kernel, or to how the scene is
+turned into kernel arrays.  A change that is *meant* to alter the numbers updates the digests, printed by
+
+    .venv/bin/python tests/test_kernel_digests.py
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+sys.path.insert(0, str(Path(__file__).parent))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+
+from scenes import box, rad_polygon, write_scene  # noqa: E402
+
+# a room that reaches every branch Angers does not: every emitter kind, quad sensors, a solid sensor
+ROOM = ("void plastic grey\n0\n0\n5 0.5 0.5 0.5 0.3 0.1\n\n"
+        "void mirror silver\n0\n0\n3 0.9 0.9 0.9\n\n"
+        "void trans diffuser\n0\n0\n7 0.1 0.1 0.1 0 0 0.7 0.4\n\n"
+        "void light lamp\n0\n0\n3 10 10 10\n\n"
+        + box("grey", (0, 0, 0), (1000, 1000, 1100))
+        + rad_polygon("silver", "mirror", [(990, 100, 100), (990, 100, 900), (990, 900, 900), (990, 900, 100)])
+        + rad_polygon("diffuser", "sheet", [(200, 200, 950), (800, 200, 950), (800, 800, 950), (200, 800, 950)])
+        + rad_polygon("lamp", "panel", [(100, 100, 1050), (100, 300, 1050), (300, 300, 1050), (300, 100, 1050)])
+        + "lamp cylinder tube\n0\n0\n7 300 500 1020 700 500 1020 5\n\n"
+        + "lamp sphere bulb\n0\n0\n4 800 800 1000 20\n\n")
+SOLID = rad_polygon("grey", "block", [(600, 600, 300), (700, 600, 300), (700, 700, 300), (600, 700, 300)])
+DISCS = "X,Y,Z,rayon_capteur,Xnorm,Ynorm,Znorm\n" + "".join(
+    "%r,%r,%r,40.0,%r,%r,%r\n" % r for r in [(500.0, 500.0, 500.0, 0.0, 0.0, 1.0), (50.0, 500.0, 600.0, 1.0, 0.0, 0.0),
+                                              (500.0, 960.0, 400.0, 0.0, 0.0, 1.0), (900.0, 500.0, 500.0, 1.0, 0.0, 0.0)])
+QUADS = ("x0,y0,z0,x1,y1,z1,x2,y2,z2,x3,y3,z3\n"
+         "200,200,200,300,200,200,300,300,200,200,300,200\n"
+         "400,0.0,600,400,0.0,700,500,0.0,700,500,0.0,600\n")
+
+
+def _room(folder: Path, lamps: str, specular: str) -> Path:
+    write_scene(folder, ROOM)
+    (folder / "discs.csv").write_text(DISCS)
+    (folder / "quads.csv").write_text(QUADS)
+    (folder / "solid.rad").write_text(SOLID)
+    (folder / "scene.toml").write_text('geometry = "scene.rad"\nsensors = ["discs.csv", "quads.csv"]\n'
+                                       'solid_sensors = "solid.rad"\n[physics]\nlamps = "%s"\nspecular = "%s"\n'
+                                       % (lamps, specular))
+    return folder / "scene.toml"
+
+
+def _digest(arrays) -> str:
+    h = hashlib.sha256()
+    for a in arrays:
+        a = np.ascontiguousarray(a)
+        h.update(str((a.dtype.str, a.shape)).encode())
+        h.update(a.tobytes())
+    return h.hexdigest()
+
+
+def _run(scene, estimator, photons, seed=3, picks=None, prune=True):
+    """Trace as ``lpy-light run`` does (with ``nee``: the pilot that switches off blind sources first)."""
+    from lpy_light import simulate
+    from lpy_light.cli import resolve_scene
+    from lpy_light.scene import load_scene
+
+    chamber = load_scene(resolve_scene(str(scene)))
+    ks = simulate.KernelScene(chamber, estimator)
+    if picks is not None:
+        ks.nee_picks = picks
+    if estimator == "nee" and prune:
+        ks.prune_next_events(threads=2)
+    r = simulate.run(ks, photons, seed=seed, threads=2)
+    return _digest([r.tally, r.tally_prod, r.counters, r.nee_stats])
+
+
+def _rose(photons, stage=2, stages=4):
+    from lpy_light.light import LightModel
+    from rose import LEAF_MATERIAL, rose
+
+    model = LightModel("angers-12bands", photons=photons, plant_unit="cm", estimator="nee", threads=2,
+                       lamp_flux=np.linspace(1.0, 2.0, 12), targets=["Leaf", "Bud"],
+                       organs={"Leaf": LEAF_MATERIAL, "Internode": LEAF_MATERIAL[0], "Bud": LEAF_MATERIAL[0]})
+    out = []
+    for s in (stage - 1, stage):
+        step = model.run(model.organs_from_meshes(rose(s, stages)))
+        for light in step.organs.values():
+            out += [light.photons, light.photons_std, light.ppfd, light.ppfd_std, light.absorbed, light.absorbed_std,
+                    np.array([light.par, light.par_std, light.rfr, light.rfr_std])]
+    return _digest(out)
+
+
+def cases(tmp: Path) -> dict:
+    """Every case's callable (name → () → digest)."""
+    line = lambda: _room(tmp / "room-line", "line", "mirror")
+    lamb = lambda: _room(tmp / "room-lambertian", "lambertian", "phong")
+    return {
+        "angers-weighted": lambda: _run("angers", "weighted", 200_000),
+        "angers-nee": lambda: _run("angers", "nee", 200_000),
+        "angers-analog": lambda: _run("angers", "analog", 200_000),
+        "angers-12bands-nee": lambda: _run("angers-12bands", "nee", 50_000),
+        "angers-12bands-analog": lambda: _run("angers-12bands", "analog", 20_000),
+        "room-line-nee": lambda: _run(line(), "nee", 100_000),
+        "room-line-nee-all": lambda: _run(line(), "nee", 50_000, picks=0, prune=False),
+        "room-line-weighted": lambda: _run(line(), "weighted", 100_000),
+        "room-lambertian-nee": lambda: _run(lamb(), "nee", 100_000),
+        "room-lambertian-analog": lambda: _run(lamb(), "analog", 100_000),
+        "rose-nee": lambda: _rose(50_000),
+    }
+
+
+PINNED = {   # recorded on the kernel before its records (issue 29), x86-64 (CI's kind of machine)
+    "angers-weighted": "961fbaf9f8528b93fc555da21ffe5ff376bb9c29e82a75f55a0b377d3f099074",
+    "angers-nee": "17e2075253584bc169923ff00e0737be0e5383b91ac391e74653599f2e2b86e4",
+    "angers-analog": "e73ea382d14e44225fd32c0df5c0e0bbbaa9c4cf91ab73b90319a83ea9c8c1e1",
+    "angers-12bands-nee": "4fd967e5bd0309d61ca9255368b5b1310a5a58ea21901dfa0a8a25eb13824e07",
+    "angers-12bands-analog": "85bd36657df25e957c8773ec41a3d8d6fa6fc9f8809b26a55b3f6c6c94266d2b",
+    "room-line-nee": "f4038eecafbee2324a1e528642089f5b9d7bae986e0587afe765a4a4e45d46e4",
+    "room-line-nee-all": "c8f11aa01ccc5c8ce61d70e1e85dc87cb97a78f7247a2928673f9e46a6f157db",
+    "room-line-weighted": "c7d42d71b5c767043f1e8ec90838e2f94856d9283c8c561cd7be56c0fa3a5a6b",
+    "room-lambertian-nee": "266eb2e2e9c3273e92f4372c8d77568afb2b54af01b2eff0eb580b4cbd61e1ae",
+    "room-lambertian-analog": "22c08b31f224eb5c161b766a925e443d33ca195c3ccb7f1120776b4a908fcb42",
+    "rose-nee": "86fa6956e888a480d1341d6c3e5da63729686aef53979ca3898d482a31ef9343",
+}
+
+
+@pytest.mark.parametrize("case", list(cases(Path("."))))
+def test_outputs_bitwise_as_pinned(case, tmp_path):
+    assert cases(tmp_path)[case]() == PINNED.get(case), "%s: the kernel's numbers changed" % case
+
+
+if __name__ == "__main__":
+    import tempfile
+    import time
+
+    with tempfile.TemporaryDirectory() as d:
+        out = {}
+        for name, fn in cases(Path(d)).items():
+            t = time.perf_counter()
+            out[name] = fn()
+            print("%-24s %s  %.1f s" % (name, out[name], time.perf_counter() - t), file=sys.stderr)
+        print(json.dumps(out, indent=4))
