@@ -103,3 +103,80 @@ def phong_exponent(roughness: float) -> float:
     if roughness <= 0:
         return math.inf
     return max(0.0, 2.0 / roughness ** 2 - 2.0)
+
+
+@njit(inline="always", cache=True)
+def _unit(x, y, z):
+    n = math.sqrt(x * x + y * y + z * z)
+    return x / n, y / n, z / n
+
+
+@njit(inline="always", cache=True)
+def _cross(ax, ay, az, bx, by, bz):
+    return ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx
+
+
+@njit(inline="always", cache=True)
+def triangle_solid_angle(vx, vy, vz, t0, t1, t2):
+    """Solid angle (sr) of the triangle of corners ``t0, t1, t2`` ((3,) each) seen from ``v``
+    (Van Oosterom & Strackee 1983: stable for small and large angles alike)."""
+    ax, ay, az = t0[0] - vx, t0[1] - vy, t0[2] - vz
+    bx, by, bz = t1[0] - vx, t1[1] - vy, t1[2] - vz
+    cx, cy, cz = t2[0] - vx, t2[1] - vy, t2[2] - vz
+    la = math.sqrt(ax * ax + ay * ay + az * az)
+    lb = math.sqrt(bx * bx + by * by + bz * bz)
+    lc = math.sqrt(cx * cx + cy * cy + cz * cz)
+    kx, ky, kz = _cross(bx, by, bz, cx, cy, cz)
+    num = abs(ax * kx + ay * ky + az * kz)
+    den = la * lb * lc + (ax * bx + ay * by + az * bz) * lc + (ax * cx + ay * cy + az * cz) * lb \
+        + (bx * cx + by * cy + bz * cz) * la
+    return 2.0 * math.atan2(num, den)
+
+
+@njit(inline="always", cache=True)
+def spherical_triangle(vx, vy, vz, t0, t1, t2, u1, u2):
+    """A direction from ``v`` uniform in the solid angle of the triangle ``t0, t1, t2`` (Arvo 1995);
+    pdf = 1 / Ω.  Returns ``(dx, dy, dz, Ω)``; Ω = 0 (and any direction) for a triangle seen edge-on.
+
+    Used for next events to a mesh target's triangle from a vertex close to it, where a point drawn by
+    area would give an estimate ∝ 1/d², unbounded as the vertex nears the triangle: by solid angle the
+    estimate is Ω · p(ω) ≤ 2π · max p, bounded however near."""
+    omega = triangle_solid_angle(vx, vy, vz, t0, t1, t2)
+    if not omega > 1e-12:
+        return 0.0, 0.0, 1.0, 0.0
+    ax, ay, az = _unit(t0[0] - vx, t0[1] - vy, t0[2] - vz)
+    bx, by, bz = _unit(t1[0] - vx, t1[1] - vy, t1[2] - vz)
+    cx, cy, cz = _unit(t2[0] - vx, t2[1] - vy, t2[2] - vz)
+    # interior angle at a, from the normals of the great circles ab and ac
+    n1x, n1y, n1z = _cross(ax, ay, az, bx, by, bz)
+    n1x, n1y, n1z = _unit(n1x, n1y, n1z)
+    n2x, n2y, n2z = _cross(ax, ay, az, cx, cy, cz)
+    n2x, n2y, n2z = _unit(n2x, n2y, n2z)
+    cos_alpha = min(1.0, max(-1.0, n1x * n2x + n1y * n2y + n1z * n2z))
+    alpha = math.acos(cos_alpha)
+    sin_alpha = math.sin(alpha)
+    cos_c = min(1.0, max(-1.0, ax * bx + ay * by + az * bz))      # the arc a-b
+    # Arvo: the point C' on arc a-c that cuts the sub-triangle of area u1 · Ω
+    area = u1 * omega
+    s, t = math.sin(area - alpha), math.cos(area - alpha)
+    uu = t - cos_alpha
+    vv = s + sin_alpha * cos_c
+    den = (vv * s + uu * t) * sin_alpha
+    q = ((vv * t - uu * s) * cos_alpha - vv) / den if den != 0.0 else 1.0
+    q = min(1.0, max(-1.0, q))
+    pc = cx * ax + cy * ay + cz * az
+    ex, ey, ez = cx - pc * ax, cy - pc * ay, cz - pc * az
+    en = math.sqrt(ex * ex + ey * ey + ez * ez)
+    if not en > 0.0:
+        return ax, ay, az, omega
+    r = math.sqrt(max(0.0, 1.0 - q * q))
+    hx, hy, hz = q * ax + r * ex / en, q * ay + r * ey / en, q * az + r * ez / en
+    # then uniformly in z along the arc b-C'
+    hb = min(1.0, max(-1.0, hx * bx + hy * by + hz * bz))
+    z = 1.0 - u2 * (1.0 - hb)
+    fx, fy, fz = hx - hb * bx, hy - hb * by, hz - hb * bz
+    fn = math.sqrt(fx * fx + fy * fy + fz * fz)
+    if not fn > 0.0:
+        return bx, by, bz, omega
+    r = math.sqrt(max(0.0, 1.0 - z * z))
+    return z * bx + r * fx / fn, z * by + r * fy / fn, z * bz + r * fz / fn, omega

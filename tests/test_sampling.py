@@ -96,3 +96,52 @@ def test_mirror_reflection():
 def test_phong_exponent_follows_roughness():
     assert smp.phong_exponent(0) == math.inf
     assert smp.phong_exponent(0.1) > smp.phong_exponent(0.3) > 0
+
+
+def _subtriangles(t, levels):
+    """The 4**levels triangles of ``t`` ((3, 3)) by midpoint subdivision."""
+    tris = [np.asarray(t, float)]
+    for _ in range(levels):
+        out = []
+        for a, b, c in tris:
+            ab, bc, ca = (a + b) / 2, (b + c) / 2, (c + a) / 2
+            out += [np.array(x) for x in ((a, ab, ca), (ab, b, bc), (ca, bc, c), (ab, bc, ca))]
+        tris = out
+    return tris
+
+
+@pytest.mark.parametrize("v, tri", [
+    ((0.0, 0.0, 0.0), ((1.0, -1.0, 1.0), (1.0, 1.0, 1.0), (-1.0, 0.0, 1.0))),            # facing, ~1.5 sr
+    ((0.05, 0.02, 0.01), ((0.0, 0.0, 0.0), (3.0, 0.0, 0.0), (0.0, 2.0, 0.0))),           # right above a corner
+    ((0.3, 0.2, -0.001), ((0.0, 0.0, 0.0), (3.0, 0.1, 0.0), (0.0, 2.0, 0.0))),           # just below: ~2π
+    ((0.0, 0.0, 0.0), ((5.0, 0.0, 1.0), (5.0, 0.05, 1.0), (-5.0, 0.02, 1.0))),           # a sliver
+])
+def test_spherical_triangle_is_uniform_in_solid_angle(v, tri):
+    """χ² of directions drawn by ``spherical_triangle`` over the 16 sub-triangles of a midpoint subdivision,
+    each expected in proportion to its exact solid angle (Van Oosterom's formula, checked against the
+    whole).  A sampler uniform by *area* fails this (the near corner gets far more solid angle)."""
+    from lpy_light.kernel.sampling import spherical_triangle, triangle_solid_angle
+    t = np.array(tri)
+    omega = triangle_solid_angle(*v, t[0], t[1], t[2])
+    subs = _subtriangles(t, 2)
+    sub_omega = np.array([triangle_solid_angle(*v, s[0], s[1], s[2]) for s in subs])
+    assert sub_omega.sum() == pytest.approx(omega, rel=1e-9)
+    rng = np.random.default_rng(5)
+    n = 40_000
+    normal = np.cross(t[1] - t[0], t[2] - t[0])
+    counts = np.zeros(len(subs))
+    for u1, u2 in rng.random((n, 2)):
+        dx, dy, dz, om = spherical_triangle(*v, t[0], t[1], t[2], u1, u2)
+        assert om == pytest.approx(omega, rel=1e-12)
+        d = np.array([dx, dy, dz])
+        p = np.array(v) + d * (np.dot(t[0] - v, normal) / np.dot(d, normal))    # where it meets the plane
+        for k, s in enumerate(subs):            # which sub-triangle (barycentric test)
+            m = np.array([s[1] - s[0], s[2] - s[0]]).T
+            lam = np.linalg.lstsq(m, p - s[0], rcond=None)[0]
+            if lam.min() >= -1e-9 and lam.sum() <= 1 + 1e-9:
+                counts[k] += 1
+                break
+    assert counts.sum() >= n * (1 - 1e-3)
+    expected = n * sub_omega / omega
+    chi2 = ((counts - expected) ** 2 / expected).sum()
+    assert chi2 < 45.0, (chi2, counts, expected)          # 15 dof: p = 1e-4 at 42.6
