@@ -27,10 +27,16 @@ sampled by triangle area.
 Near a target, 1/d² makes the estimate heavy-tailed (infinite variance as the
 vertex approaches the target).  Discs avoid it: their point is drawn by solid
 angle as seen from v (:func:`disc_point_by_solid_angle`), so a next event is
-bounded however near v is.  For quads and meshes, a vertex closer to a target
-than :data:`NEAR` times the target's bounding radius makes no next event for
-it, and the segment's real crossing of that target is counted instead — a fixed
-split of the path space, so still unbiased.
+bounded however near v is.  Meshes too: the triangle drawn (by area), if v is
+within :data:`MESH_NEAR` of its bounding radii, gets its point by solid angle
+(:func:`kernel.sampling.spherical_triangle`: estimate Ω_g · A / A_g · p(ω), at
+most 2π · A / A_g · max p), so no vertex is too near a mesh, and the light that
+neighbouring leaves, the stem beside a bud, the wall behind a leaf scatter to it
+is estimated at every such vertex instead of waiting for a photon to cross it
+(those crossings, counted, held nearly all of a rose leaf's and bud's variance).
+For quads, a vertex closer than :data:`NEAR` times the quad's bounding radius
+makes no next event for it, and the segment's real crossing is counted instead
+— a fixed split of the path space, so still unbiased.
 
 A disc right beside a wall gets much of its light through the few photons
 that land on the wall next to it; :func:`kernel.zones.near_zones` marks those
@@ -51,14 +57,15 @@ from .rays import seen_share
 from .records import (ABSORB, DIFFUSE_R, DIFFUSE_T, T_DISC, T_MESH1, T_MESH2, T_QUAD, V_ISOTROPIC,  # noqa: F401
                       V_LAMBERT, V_SURFACE)
 from .rng import uniform
-from .sampling import frame, search_cdf
+from .sampling import frame, search_cdf, spherical_triangle
 from .tallies import C_SHADOW
 
 # Embree intersects a triangle in float32 from the ray's origin: on a thin sliver (a leaf fan) the plane it
 # finds is off by ~1e-5 of the distance (measured: 0.75-1e-5 · d on a 96-triangle disc), so a shadow ray
 # to a point ON a mesh target must stop that much short or it is blocked by the target itself.
 END_REL = 2.0 ** -13
-NEAR = 3.0       # exclusion radius around a quad or mesh target, in its bounding radii
+NEAR = 3.0       # exclusion radius around a quad target (and image events' around a mesh), in bounding radii
+MESH_NEAR = 4.0  # a mesh triangle nearer than this · its bounding radius is sampled by solid angle
 FAR = 10.0      # discs farther than FAR radii: points drawn by area
 NEAR_PICKED = 1.0    # discs nearer than this · radius · √(targets) get their own next event (kernel.targets.near_discs)
 NEAR_FLOOR = 2.0     # ... and always those nearer than this · radius (kernel.targets.near_discs)
@@ -83,6 +90,19 @@ def mesh_point(t, u1, u2, u3, tgt, geo):
     g = tgt.tri[search_cdf(tgt.tri_cdf, tgt.first[t], tgt.first[t] + tgt.count[t] - 1, u3)]
     px, py, pz = _tri_point(geo.verts[g], u1, u2)
     return g, px, py, pz
+
+
+@njit(inline="always", cache=True)
+def _near_triangle(vx, vy, vz, a):
+    """Is v within :data:`MESH_NEAR` bounding radii (about its centroid) of triangle ``a`` (3, 3)?  There a point
+    drawn by area would give a next event ∝ A / d², unbounded as v nears the triangle."""
+    cx, cy, cz = (a[0, 0] + a[1, 0] + a[2, 0]) / 3.0, (a[0, 1] + a[1, 1] + a[2, 1]) / 3.0, (a[0, 2] + a[1, 2] + a[2, 2]) / 3.0
+    r2 = 0.0
+    for i in range(3):
+        ex, ey, ez = a[i, 0] - cx, a[i, 1] - cy, a[i, 2] - cz
+        r2 = max(r2, ex * ex + ey * ey + ez * ez)
+    ex, ey, ez = vx - cx, vy - cy, vz - cz
+    return ex * ex + ey * ey + ez * ez < MESH_NEAR * MESH_NEAR * r2
 
 
 @njit(inline="always", cache=True)
@@ -323,6 +343,19 @@ def next_event(v, stat, cover_pid, control, geo, mat, sens, tgt, zones, photon, 
         else:
             g, px, py, pz = mesh_point(t, u1, u2, u3, tgt, geo)
             mx, my, mz = geo.normal[g, 0], geo.normal[g, 1], geo.normal[g, 2]
+            if _near_triangle(vx, vy, vz, geo.verts[g]):
+                # by solid angle within the triangle drawn: Ω_g · A_t / A_g (P_g = A_g / A_t), bounded
+                sx, sy, sz, om = spherical_triangle(vx, vy, vz, geo.verts[g, 0], geo.verts[g, 1], geo.verts[g, 2],
+                                                    u1, u2)
+                den = sx * mx + sy * my + sz * mz
+                if om == 0.0 or den == 0.0:
+                    continue
+                tt = ((geo.verts[g, 0, 0] - vx) * mx + (geo.verts[g, 0, 1] - vy) * my
+                      + (geo.verts[g, 0, 2] - vz) * mz) / den
+                if not tt > 0.0:
+                    continue
+                px, py, pz = vx + tt * sx, vy + tt * sy, vz + tt * sz
+                omega = om * tgt.area[t] / _tri_area(geo.verts[g], 0, 1, 2)
         dx, dy, dz = px - vx, py - vy, pz - vz
         dist2 = dx * dx + dy * dy + dz * dz
         if not dist2 > 0.0:
@@ -332,7 +365,7 @@ def next_event(v, stat, cover_pid, control, geo, mat, sens, tgt, zones, photon, 
         cos_x = dx * mx + dy * my + dz * mz
         if kind != T_MESH2 and cos_x >= 0.0:
             continue          # sensors and one-sided receivers are met from the front only
-        geom = tscale * (omega if kind == T_DISC else tgt.area[t] * abs(cos_x) / dist2)
+        geom = tscale * (omega if omega > 0.0 else tgt.area[t] * abs(cos_x) / dist2)
         cos_v = dx * nx + dy * ny + dz * nz
         if mode == V_ISOTROPIC:
             for b in range(n_bands):
