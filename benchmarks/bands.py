@@ -35,7 +35,7 @@ from pathlib import Path
 import numpy as np
 
 from lpy_light import simulate
-from lpy_light.cli import resolve_scene
+from lpy_light.scene import resolve_scene
 from lpy_light.scene import load_scene
 
 SCENES = {"1 band": "angers", "12 bands": "angers-12bands"}

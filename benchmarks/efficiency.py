@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from lpy_light import simulate
-from lpy_light.cli import resolve_scene
+from lpy_light.scene import resolve_scene
 from lpy_light.scene import load_scene
 
 sys.path.insert(0, str(Path(__file__).parent))

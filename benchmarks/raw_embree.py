@@ -41,7 +41,7 @@ import numpy as np
 from numba import njit
 
 from lpy_light import simulate
-from lpy_light.cli import resolve_scene
+from lpy_light.scene import resolve_scene
 from lpy_light.kernel import embree
 from lpy_light.kernel.embree import (ARGS, CAND_COUNT, DIR, GEOM_ID, INVALID_ID, MASK, ORG, PRIM_ID, RAYHIT,
                                      TFAR, TNEAR)

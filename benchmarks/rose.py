@@ -6,6 +6,13 @@ and 90th-percentile relative σ on PAR, the buds' median, and what the geometry 
 as lsystems/rose.lpy runs in L-Py, minus PlantGL's tessellation.
 
     .venv/bin/python benchmarks/rose.py [--photons 300000] [--steps 5] [--estimator nee] [--targets all] [--images 0.2]
+
+With ``--lpy`` (in a venv with L-Py and PlantGL, e.g. ``.venv-lpy`` from ``scripts/test-lpy.sh``), the same
+growth through the real L-Py: ``lsystems/rose.lpy`` derived ``--steps`` steps (default 36: ≥ 500 organs), and per
+step the share of its time spent in L-Py (derivation and PlantGL's scene), in tessellation and conversion of
+the organs' shapes, and in tracing:
+
+    .venv-lpy/bin/python benchmarks/rose.py --lpy --steps 36 --photons 1e6
 """
 import argparse
 import math
@@ -82,6 +89,48 @@ def rose(stage: int, max_stage: int):
     return organs
 
 
+def lpy_growth(args):
+    """``--lpy``: lsystems/rose.lpy in the real L-Py, timed per step by where the time goes."""
+    from pathlib import Path
+
+    from openalea.lpy import Lsystem
+
+    from lpy_light import light as lightmod
+
+    model_path = Path(args.model) if args.model else Path(__file__).parent.parent / "lsystems" / "rose.lpy"
+    t0 = time.perf_counter()
+    externs = {"PHOTONS": int(args.photons)} if args.model else {"STEPS": args.steps, "PHOTONS": int(args.photons),
+                                                                  "PRECISION": 0}
+    lsys = Lsystem(str(model_path), externs)
+    model = lightmod.MODELS[-1]
+    if args.threads:
+        model.threads = args.threads
+    print("model + chamber + normalisation: %.2f s (once)" % (time.perf_counter() - t0))
+    steps = []
+    model.on_step = lambda step, organs: steps.append(step)
+    print("%4s %7s %9s %8s %8s %10s %10s %8s %8s %10s %10s" % (
+        "step", "organs", "triangles", "step s", "CPU s", "L-Py s", "convert s", "trace s", "convert", "leaf σ med",
+        "bud σ med"))
+    totals = np.zeros(4)
+    lstring = lsys.axiom
+    for i in range(args.steps):
+        t, cpu = time.perf_counter(), time.process_time()
+        lstring = lsys.derive(lstring, i, 1)
+        total, cpu = time.perf_counter() - t, time.process_time() - cpu
+        step = steps[-1]
+        convert = step.extra.get("convert_seconds", 0.0)
+        lpy_s = total - convert - step.seconds
+        leaf = [l.par_std / l.par for l in step.organs.values() if l.module == "Leaf" and l.par > 0]
+        bud = [l.par_std / l.par for l in step.organs.values() if l.module == "Bud" and l.par > 0]
+        totals += (total, lpy_s, convert, step.seconds)
+        print("%4d %7d %9d %8.2f %8.2f %10.3f %10.3f %8.2f %7.0f%% %9.1f%% %9.1f%%" % (
+            i, len(step.organs), step.triangles, total, cpu, lpy_s, convert, step.seconds, 100 * convert / total,
+            100 * np.median(leaf) if leaf else float("nan"), 100 * np.median(bud) if bud else float("nan")))
+    print("all steps: %.1f s; L-Py %.0f %%, tessellation and conversion %.0f %%, tracing %.0f %%; last step %d organs"
+          % (totals[0], 100 * totals[1] / totals[0], 100 * totals[2] / totals[0], 100 * totals[3] / totals[0],
+             len(steps[-1].organs)))
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--photons", type=float, default=300_000)
@@ -92,7 +141,15 @@ def main():
                     help="modules next events aim at (default: Leaf Bud, as lsystems/rose.lpy; 'all': every organ)")
     ap.add_argument("--images", type=float, default=None,
                     help="next events through a mirror per vertex, on average (default: LightModel's, 0.2)")
+    ap.add_argument("--lpy", action="store_true",
+                    help="grow lsystems/rose.lpy in the real L-Py (needs L-Py/PlantGL) and time where a step goes")
+    ap.add_argument("--model", default=None,
+                    help="with --lpy: another .lpy model that creates a LightModel (e.g. lsystems/rose-simple4-light.lpy)")
     args = ap.parse_args()
+    if args.lpy:
+        if "--steps" not in " ".join(__import__("sys").argv):
+            args.steps = 36
+        return lpy_growth(args)
     t0 = time.perf_counter()
     model = LightModel("angers-12bands", photons=int(args.photons), plant_unit="cm", estimator=args.estimator,
                        threads=args.threads,

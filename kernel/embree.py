@@ -19,6 +19,7 @@ id    name                behaviour
 3     ``organs``          the plant: two-sided triangles, replaced between
                           growth steps (:meth:`EmbreeScene.set_organs`)
                           while the chamber's geometries stay built
+                          (one-sided on request: an ablation)
 ====  ==================  ===================================================
 """
 from __future__ import annotations
@@ -182,13 +183,15 @@ class EmbreeScene:
         if err:
             raise RuntimeError("Embree error %d while building the scene" % err)
 
-    def set_organs(self, tris):
-        """Replace the organ geometry (id 3) by ``tris`` (n, 3, 3) and recommit; the rest is kept."""
+    def set_organs(self, tris, one_sided=False):
+        """Replace the organ geometry (id 3) by ``tris`` (n, 3, 3) and recommit; the rest is kept.
+        ``one_sided``: back faces are ignored as on geometry 0 (an ablation, not a leaf)."""
         if self._has_organs:
             lib().rtcDetachGeometry(self._scene, GEOM_ORGANS)
             self._has_organs = False
         if tris is not None and len(tris):
-            self._attach(GEOM_ORGANS, np.asarray(tris, dtype=np.float64), None)
+            self._attach(GEOM_ORGANS, np.asarray(tris, dtype=np.float64),
+                         _reject_back_faces.address if one_sided else None)
             self._has_organs = True
         self._commit()
 

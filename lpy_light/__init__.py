@@ -16,4 +16,7 @@ def __getattr__(name):
     if name == "LightModel":
         from .light import LightModel
         return LightModel
+    if name == "par_colour":
+        from .plant_view import par_colour
+        return par_colour
     raise AttributeError(name)

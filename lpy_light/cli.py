@@ -12,7 +12,9 @@ SCENE may be a path or the name of a built-in scene (``angers``,
 from __future__ import annotations
 
 import argparse
+import contextlib
 import logging
+import math
 import os
 import signal
 import sys
@@ -20,23 +22,11 @@ import threading
 from pathlib import Path
 
 from .errors import InputError, LpyLightError
+from .scene import builtin_scenes, resolve_scene  # noqa: F401  (scene lookup lives with scenes)
 
-DATA = Path(__file__).parent / "data"
 MAX_NEE_PICKS = 4096      # shadow rays per vertex; 0 (every target) is the way to ask for more
-
-
-def builtin_scenes() -> dict:
-    return {p.stem: p for p in sorted(DATA.glob("*/*.toml"))}
-
-
-def resolve_scene(name: str) -> Path:
-    path = Path(name)
-    if path.exists():
-        return path
-    scenes = builtin_scenes()
-    if name in scenes:
-        return scenes[name]
-    raise InputError("scene file not found (built-in scenes: %s)" % ", ".join(scenes), name)
+DEFAULT_PRECISION = 0.01  # `run` without --photons/--precision: every sensor and band to 1 % (nee)
+DEFAULT_CAP = 100_000_000  # ... but no more photons than this (a sensor in the dark would hold the run)
 
 
 def check_out_dir(out):
@@ -88,17 +78,26 @@ def _parser() -> argparse.ArgumentParser:
     r = sub.add_parser("run", help="trace photons through a scene and write sensors.csv and summary.json")
     r.add_argument("scene", help="scene TOML file, or a built-in scene name (see 'lpy-light scenes')")
     r.add_argument("--photons", type=_count, default=None,
-                   help="photons (all bands travel together; default 1e6, or a cap of 1e10 with --precision)")
+                   help="photons (all bands travel together). Alone: exactly this many. With --precision: a cap "
+                        "(default cap 1e10). Without either: nee stops at 1%% (cap %g), weighted/analog trace 1e6"
+                        % DEFAULT_CAP)
     r.add_argument("--precision", type=float, default=None, metavar="REL",
-                   help="stop when every sensor's relative σ is at most REL (e.g. 0.01); --photons is then a cap")
+                   help="stop when every sensor's relative σ is at most REL (default with nee and no --photons: "
+                        "%g); --photons is then a cap" % DEFAULT_PRECISION)
     r.add_argument("--seed", type=int, default=1, help="random seed (default 1); results depend on it alone")
     r.add_argument("--threads", type=int, default=None, help="threads (default: all cores)")
     r.add_argument("--out", required=True, help="output folder")
-    r.add_argument("--estimator", choices=("weighted", "nee", "analog"), default="weighted",
-                   help="weighted (default: expected absorption, bands share events without any weight "
-                        "growing), nee (weighted + next-event tallies on sensors and receivers: far fewer "
-                        "photons for the same precision) or analog (SEC2's counting: one photon, one event)")
+    r.add_argument("--estimator", choices=("nee", "weighted", "analog"), default="nee",
+                   help="nee (default: expected absorption at every hit plus next-event tallies on sensors and "
+                        "receivers: the most precise per second), weighted (no next events: every photon's "
+                        "own hits, bands share events; for the energy closure per material) or analog (SEC2's "
+                        "counting: one photon, one event, raw hit counts)")
     r.add_argument("--quiet", action="store_true", help="no progress lines")
+    r.add_argument("--dask", metavar="ADDRESS", default=None,
+                   help="trace the photon chunks on a Dask cluster, with the same numbers as here: 'local' or "
+                        "'local:N' (N worker processes on this machine, on 127.0.0.1 only; --threads per worker), "
+                        "a scheduler's address (tls://host:8786) or scheduler file (.json); "
+                        "needs pip install 'lpy-light[dask]' (docs/scaling.md)")
     r.add_argument("--nee-picks", type=int, default=1, metavar="K",
                    help="with --estimator nee: targets per next event, drawn at random (default 1; 0 = all)")
     r.add_argument("--nee-images", type=float, default=0.5, metavar="K",
@@ -125,12 +124,32 @@ def _parser() -> argparse.ArgumentParser:
                    help="band compared with the reference (default 655-665 when the scene has it, else the first)")
     sub.add_parser("scenes", help="list the built-in scenes")
     _grow_parser(sub)
+    _sweep_parser(sub)
     return p
 
 
+def _sweep_parser(sub):
+    s = sub.add_parser("sweep", allow_abbrev=False,
+                       help="many runs as one command: a grid of an .lpy model's externs (grow) or of scenes (run); "
+                            "resumable; on this machine or on Dask",
+                       description="Every combination of the inputs and the --set values is one run, written to "
+                                   "OUT/NAME/ with sweep.csv indexing them; the same command again skips the "
+                                   "finished runs. Options the sweep does not know (--steps 30, --photons 1e6) go "
+                                   "to every run: put them after the inputs.")
+    s.add_argument("inputs", nargs="+", help=".lpy models (each run: lpy-light grow) or scenes (lpy-light run)")
+    s.add_argument("--set", action="append", default=[], metavar="NAME=VALUES",
+                   help="a grid axis: NAME=V1,V2,... or NAME=A..B (whole numbers); a model's extern "
+                        "(--set PAR_MIN=20,40,80) or a run option (--set seed=1..4); repeatable")
+    s.add_argument("--out", required=True, help="output folder: one sub-folder per run, and sweep.csv")
+    s.add_argument("--dask", metavar="ADDRESS", default=None,
+                   help="run on a Dask cluster: local[:N], tls://host:8786, or a scheduler file (see run --dask)")
+    s.add_argument("--workers", type=int, default=None,
+                   help="runs at once on this machine (default: one per core; each run has --threads 1 unless given)")
+    s.add_argument("--quiet", action="store_true", help="no line per finished run")
+
+
 def cmd_run(args) -> int:
-    from . import simulate, units
-    from .results import write_run
+    from . import simulate
     from .scene import load_scene
 
     if args.threads is not None and not 1 <= args.threads <= simulate.MAX_THREADS:
@@ -140,6 +159,8 @@ def cmd_run(args) -> int:
     check_out_dir(args.out)
     if args.precision is not None and not 0 < args.precision < 1:
         raise InputError("--precision must be a relative σ in (0, 1), e.g. 0.01")
+    if args.photons is None and args.precision is None and args.estimator == "nee":
+        args.precision, args.photons = DEFAULT_PRECISION, DEFAULT_CAP      # the best answer by default
     if args.photons is None:
         args.photons = 10_000_000_000 if args.precision is not None else 1_000_000
     path = resolve_scene(args.scene)
@@ -157,8 +178,21 @@ def cmd_run(args) -> int:
         raise InputError("--nee-zones must be in 0..64")
     kscene.nee_zones = args.nee_zones
     kscene.nee_control = not args.no_nee_control
-    if args.estimator == "nee":
-        kscene.prune_next_events(threads=args.threads)
+    with contextlib.ExitStack() as cluster_scope:
+        executor = None
+        if args.dask is not None:
+            from . import cluster
+            client = cluster_scope.enter_context(cluster.dask_client(args.dask, threads=args.threads))
+            executor = cluster.DaskChunks(client)
+        if args.estimator == "nee":
+            kscene.prune_next_events(threads=args.threads if executor is None else None)
+        return _trace_and_write(args, path, chamber, kscene, measured, ref, ref_band, executor)
+
+
+def _trace_and_write(args, path, chamber, kscene, measured, ref, ref_band, executor=None) -> int:
+    from . import simulate, units
+    from .results import write_run
+
     stop, tracing = threading.Event(), [True]
 
     def on_term(signum, frame):
@@ -178,7 +212,7 @@ def cmd_run(args) -> int:
                   file=sys.stderr)
         result = simulate.run(kscene, args.photons, seed=args.seed, threads=args.threads,
                               progress=None if args.quiet else simulate.progress_printer(),
-                              stop=stop.is_set, precision=args.precision)
+                              stop=stop.is_set, precision=args.precision, executor=executor)
     finally:
         tracing[0] = False
     norm = None
@@ -202,20 +236,44 @@ def cmd_run(args) -> int:
         print("lpy-light: %s vs %s (band %s): %s" % (path.name, ref.source, ref_band, comparison.line()))
     if args.plot:
         _plots(args, chamber, result, norm, comparison, ref, ref_band)
-    if not args.quiet and "relative_sigma" in summary:
-        sig = summary["relative_sigma"]
-        at = sig["max_at"]
-        print("lpy-light: relative σ per sensor and band: median %.3g %%, largest %.3g %% (sensor %d at %s %s, "
-              "band %s)%s" % (100 * sig["median"], 100 * sig["max"], at["sensor"],
-                              ", ".join("%g" % x for x in at["position"]), chamber.unit, at["band"],
-                              "" if args.precision is None else "; --precision %g %s" % (
-                                  args.precision, "reached" if summary.get("precision_reached") else "NOT reached")),
-              file=sys.stderr)
     if not args.quiet:
-        print("lpy-light: %d photons in %.2f s (%.3g photons/s)%s; results in %s"
-              % (result.photons, result.seconds, summary["photons_per_second"] or 0,
-                 " — PARTIAL (interrupted)" if result.partial else "", args.out), file=sys.stderr)
+        for line in _what_it_means(args, chamber, result, summary, norm, executor):
+            print("lpy-light: " + line, file=sys.stderr)
     return 130 if result.partial else 0
+
+
+def _what_it_means(args, chamber, result, summary, norm, executor=None) -> list:
+    """The lines a run ends with: how long, how precise, where the results are and what their columns hold."""
+    from . import units
+
+    where = "" if executor is None else " on %d Dask worker(s) at %s" % (executor.workers, executor.address)
+    lines = ["%d photons in %.2f s (%.3g photons/s, estimator %s)%s%s"
+             % (result.photons, result.seconds, summary["photons_per_second"] or 0, result.estimator, where,
+                " — PARTIAL (interrupted)" if result.partial else "")]
+    sig = summary.get("relative_sigma")
+    if sig is not None:
+        at = sig["max_at"]
+        goal = "" if args.precision is None else "; goal %g %% %s" % (
+            100 * args.precision, "reached" if summary.get("precision_reached") else "NOT reached (cap %d photons: "
+            "raise --photons)" % args.photons)
+        lines.append("standard error per sensor and band: median %.2g %%, largest %.2g %% (sensor %d at %s %s, band %s)%s"
+                     % (100 * sig["median"], 100 * sig["max"], at["sensor"],
+                        ", ".join("%g" % x for x in at["position"]), chamber.unit, at["band"], goal))
+    if len(chamber.sensors) and norm is not None:
+        photons, std = result.sensors()
+        value, _ = units.ppfd(photons, std, chamber.sensors.area * chamber.metres_per_unit ** 2, norm)
+        mean = value.mean(axis=0)
+        shown = ", ".join("%s nm %.4g" % (label, m) for label, m in list(zip(chamber.band_labels, mean))[:4])
+        lines.append("mean ppfd over the %d sensors (µmol m-2 s-1): %s%s%s" % (
+            len(chamber.sensors), shown, ", ..." if len(mean) > 4 else "",
+            "" if norm.assumption != units.SPECTRUM_ASSUMPTION else
+            " (the lamp spectrum's, which sets the units: the map's shape is the simulation's)"))
+    what = ("ppfd ± ppfd_std in µmol m-2 s-1 per sensor and band" if norm is not None else
+            "photons ± photons_std per sensor and band (no lamp spectrum in the scene: no µmol)")
+    extra = " and sensors_derived.csv (PAR, R:FR)" if "derived" in summary else ""
+    lines.append("results in %s: sensors.csv (%s)%s, summary.json (precision, energy closure, settings)"
+                 % (args.out, what, extra))
+    return lines
 
 
 def _before_run(args, chamber):
@@ -320,14 +378,89 @@ def _plots(args, chamber, result, norm, comparison, ref, ref_band):
 
 
 def _grow_parser(sub):
-    g = sub.add_parser("grow", help="grow an L-Py model that calls LightModel.intercept() in EndEach; "
-                                    "write organs.csv and a picture of the last step (needs L-Py, from conda)")
+    g = sub.add_parser("grow", help="grow an L-Py model and light it at every step: a model that calls "
+                                    "LightModel.intercept() in EndEach, or any model with --organs; write organs.csv "
+                                    "and pictures (needs L-Py and PlantGL, from conda)")
     g.add_argument("model", help=".lpy file")
-    g.add_argument("--steps", type=_count, required=True, help="derivation steps")
-    g.add_argument("--photons", type=_count, default=None, help="photons per step (default: the model's)")
+    g.add_argument("--steps", type=_count, default=None, help="derivation steps (default: the model's derivation length)")
+    g.add_argument("--photons", type=_count, default=None,
+                   help="photons per step (default: the model's; with a precision, the most a step traces)")
+    g.add_argument("--precision", type=float, default=None, metavar="REL",
+                   help="relative σ to reach on every target organ's PAR and R:FR before a step stops")
+    g.add_argument("--seed", type=int, default=None, help="random seed of the light model (default: the model's)")
     g.add_argument("--threads", type=int, default=None, help="threads (default: all cores)")
     g.add_argument("--out", required=True, help="output folder")
+    g.add_argument("--plot-every", type=_count, default=None, metavar="N",
+                   help="also save plant_<step>.png every N steps (plant.png, the last step, is always saved)")
+    g.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
+                   help="set an extern of the model, e.g. --set PAR_MIN=20 (a Python literal, else text); repeatable")
     g.add_argument("--quiet", action="store_true", help="no progress lines")
+    o = g.add_argument_group("lighting a model that does not call lpy-light (no edit to the model)")
+    o.add_argument("--organs", action="append", default=None, metavar="MODULE=MATERIAL[/BACK]",
+                   help="a module whose shapes are organs, and its optical material (a name from the scene's "
+                        "tables; FRONT/BACK for a leaf's two sides); repeat for each module")
+    o.add_argument("--at", default=None, metavar="X,Y,Z",
+                   help="where the plant's origin stands, in chamber units (default: the scene's plant_position)")
+    o.add_argument("--scene", default="angers-12bands", help="scene file or built-in name (default angers-12bands)")
+    o.add_argument("--plant-unit", default="cm", help="unit of the model's coordinates (default cm)")
+    o.add_argument("--every", type=_count, default=1, metavar="N",
+                   help="light steps N, 2N, ... and always the last (default 1: every step)")
+    o.add_argument("--targets", default=None, metavar="MODULE[,MODULE...]",
+                   help="modules whose light is estimated (default: every --organs module)")
+
+
+def _organ_specs(items) -> dict:
+    """``--organs Leaf=FeuilleVieille_Sup/FeuilleVieille_Inf`` → ``{"Leaf": ("FeuilleVieille_Sup", ...)}``."""
+    organs = {}
+    for item in items:
+        module, eq, material = item.partition("=")
+        module, material = module.strip(), material.strip()
+        if not eq or not module or not material:
+            raise InputError("--organs expects MODULE=MATERIAL or MODULE=FRONT/BACK, got %r" % item)
+        sides = [m.strip() for m in material.split("/")]
+        if len(sides) > 2 or not all(sides):
+            raise InputError("--organs %s: expected one material or FRONT/BACK, got %r" % (module, material))
+        organs[module] = sides[0] if len(sides) == 1 else tuple(sides)
+    return organs
+
+
+def _point(text, what) -> tuple:
+    try:
+        xyz = tuple(float(x) for x in text.split(","))
+    except ValueError:
+        xyz = ()
+    if len(xyz) != 3 or not all(map(math.isfinite, xyz)):
+        raise InputError("%s expects X,Y,Z (three numbers), got %r" % (what, text))
+    return xyz
+
+
+def _outside_model(args, path):
+    """The light model of ``grow --organs``: built here, for a model that knows nothing of lpy-light."""
+    from .light import LightModel
+    from .scene import UNITS
+
+    if args.plant_unit not in UNITS:
+        raise InputError("--plant-unit must be one of %s" % ", ".join(UNITS))
+    organs = _organ_specs(args.organs)
+    targets = None if args.targets is None else [t.strip() for t in args.targets.split(",") if t.strip()]
+    return LightModel(args.scene, organs=organs, photons=args.photons or 1_000_000, precision=args.precision,
+                      seed=1 if args.seed is None else args.seed, threads=args.threads, plant_unit=args.plant_unit,
+                      position=None if args.at is None else _point(args.at, "--at"), parameter=None, targets=targets)
+
+
+def extern_values(sets) -> dict:
+    """``["PAR_MIN=20", "SCENE=angers"]`` → ``{"PAR_MIN": 20, "SCENE": "angers"}``: Python literals, else text."""
+    import ast
+    out = {}
+    for text in sets:
+        name, eq, value = text.partition("=")
+        if not eq or not name.strip().isidentifier():
+            raise InputError("--set %s: expected NAME=VALUE (an extern of the model)" % text)
+        try:
+            out[name.strip()] = ast.literal_eval(value.strip())
+        except (ValueError, SyntaxError):
+            out[name.strip()] = value.strip()
+    return out
 
 
 def cmd_grow(args) -> int:
@@ -338,55 +471,101 @@ def cmd_grow(args) -> int:
     path = Path(args.model)
     if not path.is_file():
         raise InputError("L-Py model not found", path)
+    check_out_dir(args.out)
+    if args.precision is not None and not 0 < args.precision < 1:
+        raise InputError("--precision must be a relative σ in (0, 1), e.g. 0.05")
+    if args.threads is not None and not 1 <= args.threads <= 1024:
+        raise InputError("--threads must be in 1..1024")
+    outside = args.organs is not None
+    if not outside and (args.at is not None or args.targets is not None):
+        raise InputError("--at and --targets go with --organs (lighting a model from outside)")
     lpy = require_lpy()
     before = len(lightmod.MODELS)
-    variables = {"STEPS": args.steps}
-    if args.photons:
-        variables["PHOTONS"] = args.photons
+    variables = {} if outside else {k: v for k, v in (("STEPS", args.steps), ("PHOTONS", args.photons),
+                                                     ("PRECISION", args.precision), ("SEED", args.seed)) if v}
+    variables.update(extern_values(args.set))
     try:
         lsys = lpy.Lsystem(str(path), variables)
     except Exception as exc:    # L-Py reports syntax errors as generic exceptions
         raise InputError("L-Py could not read the model: %s" % str(exc).splitlines()[0], path) from None
-    if len(lightmod.MODELS) == before:
-        raise InputError("the model creates no lpy_light.LightModel (see lsystems/rose.lpy)", path)
-    model = lightmod.MODELS[-1]
-    if args.photons:
-        model.photons = args.photons
-    if args.threads:
-        model.threads = args.threads
-    rows, steps = [], []
+    steps = args.steps or lsys.derivationLength
+    if outside:
+        model = _outside_model(args, path)
+    elif len(lightmod.MODELS) == before:
+        raise InputError("the model creates no lpy_light.LightModel: add one (see lsystems/rose.lpy), or light it "
+                         "from outside with --organs MODULE=MATERIAL ... --at X,Y,Z", path)
+    else:
+        model = lightmod.MODELS[-1]
+        for name, value in (("photons", args.photons), ("precision", args.precision), ("seed", args.seed),
+                            ("threads", args.threads)):
+            if value is not None:
+                setattr(model, name, lightmod._photons(value) if name == "photons" else value)
+    out = Path(args.out)
+    rows, summaries = [], []
+    pictures = []
 
     def on_step(step, organs):
         rows.extend(lightmod.organ_rows(step))
-        steps.append({"step": step.step, "organs": len(step.organs), "triangles": step.triangles,
-                      "seconds": step.seconds, "tessellated": step.tessellated, "reused": step.reused})
+        roles = [light.role for light in step.organs.values()]
+        summaries.append({"step": step.step, "organs": len(step.organs), "targets": roles.count("target"),
+                          "shading_only": roles.count("shading only"), "triangles": step.triangles,
+                          "photons": step.photons, "seconds": step.seconds, "tessellated": step.tessellated,
+                          "reused": step.reused, **step.extra})
+        if args.plot_every and organs and (step.step + 1) % args.plot_every == 0:
+            pictures.append(_plant_picture(out / ("plant_%03d.png" % step.step), model, path, step, organs))
         if not args.quiet:
-            print("  step %d: %d organs, %d triangles, %.2f s (%d organs re-tessellated, %d reused)"
-                  % (step.step, len(step.organs), step.triangles, step.seconds, step.tessellated, step.reused),
-                  file=sys.stderr, flush=True)
+            reach = "" if "precision" not in step.extra else (
+                ", σ goal %s" % ("reached" if step.extra["precision_reached"] else "NOT reached"))
+            print("  step %d: %d organs, %d triangles, %d photons%s, %.2f s (%d shapes re-tessellated, %d reused)"
+                  % (step.step, len(step.organs), step.triangles, step.photons, reach, step.seconds, step.tessellated,
+                     step.reused), file=sys.stderr, flush=True)
 
     model.on_step = on_step
+    out.mkdir(parents=True, exist_ok=True)
     partial = False
     lstring = lsys.axiom
-    try:
-        for i in range(args.steps):
-            lstring = lsys.derive(lstring, i, 1)
-    except KeyboardInterrupt:
-        partial = True
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    atomic_write(out / "organs.csv", csv_text(rows))
-    summary = {"model": str(path), "steps": steps, "partial": partial, "photons_per_step": model.photons,
-               "bands": model.chamber.band_labels, "plant_unit_m": model.scale * model.chamber.metres_per_unit}
-    atomic_write(out / "summary.json", json_text(summary))
-    if model.last_step is not None:
+    with model.warnings_once() as seen:
         try:
-            from .plant_view import plant_picture
-            plant_picture(out / "plant.png", model.last_organs, model.last_step.organs,
-                          title="%s, step %d" % (path.stem, model.last_step.step))
-        except ImportError:
-            logging.getLogger("lpy_light").warning("matplotlib not installed: no plant.png")
+            for i in range(steps):
+                lstring = lsys.derive(lstring, i, 1)
+                if outside and ((i + 1) % args.every == 0 or i == steps - 1):
+                    model.step = i
+                    model.intercept(lstring, lsys.sceneInterpretation(lstring))
+        except KeyboardInterrupt:
+            partial = True
+        if not outside and model.last_step is None and not partial:
+            logging.getLogger("lpy_light").warning(
+                "the model's LightModel was never called: call light.intercept(lstring, lscene) in EndEach, with "
+                "frameDisplay(True) in StartEach")
+    atomic_write(out / "organs.csv", csv_text(rows))
+    summary = {"model": str(path), "steps": summaries, "partial": partial, "photons_per_step": model.photons,
+               "precision": model.precision, "lit_from_outside": outside,
+               "bands": model.chamber.band_labels, "plant_unit_m": model.scale * model.chamber.metres_per_unit,
+               "position": list(map(float, model.position)), "warnings": seen.summary()}
+    if model.last_step is not None and model.last_organs:
+        pictures.append(_plant_picture(out / "plant.png", model, path, model.last_step, model.last_organs))
+    summary["pictures"] = [p for p in pictures if p]
+    atomic_write(out / "summary.json", json_text(summary))
+    if not args.quiet:
+        for line in seen.repeated_lines():
+            print("lpy-light: " + line, file=sys.stderr)
+        print("lpy-light: %d step(s) lit; results in %s: organs.csv (per organ and band: ppfd ± ppfd_std µmol m-2 s-1, "
+              "absorbed µmol s-1, par, rfr), summary.json%s" % (len(summaries), out,
+                                                                ", " + ", ".join(Path(p).name for p in summary["pictures"])
+                                                                if summary["pictures"] else ""), file=sys.stderr)
     return 130 if partial else 0
+
+
+def _plant_picture(path, model, source, step, organs):
+    """A PNG of the organs coloured by PAR (fixed scale): its path, or None without matplotlib."""
+    try:
+        from .plant_view import plant_picture
+        plant_picture(path, organs, step.organs, title="%s, step %d" % (Path(source).stem, step.step),
+                      top=model.colour_top)
+        return str(path)
+    except ImportError:
+        logging.getLogger("lpy_light").warning("matplotlib not installed: no %s" % Path(path).name)
+        return None
 
 
 def _is_a_sensor_list(path) -> bool:
@@ -429,8 +608,12 @@ def _out_in_argv(argv) -> str | None:
 def main(argv=None) -> int:
     logging.basicConfig(format="lpy-light: warning: %(message)s", level=logging.WARNING)
     argv = list(sys.argv[1:] if argv is None else argv)
+    passthrough = []
     try:
-        args = _parser().parse_args(argv)
+        if argv[:1] == ["sweep"]:       # options the sweep does not know go to every run
+            args, passthrough = _parser().parse_known_args(argv)
+        else:
+            args = _parser().parse_args(argv)
     except SystemExit as exc:
         if exc.code == 2 and argv[:1] == ["run"]:     # refused by argparse: --out holds no results either
             _remove_stale_results(_out_in_argv(argv[1:]))
@@ -445,6 +628,9 @@ def main(argv=None) -> int:
             return cmd_run(args)
         if args.command == "grow":
             return cmd_grow(args)
+        if args.command == "sweep":
+            from .sweep import cmd_sweep
+            return cmd_sweep(args, passthrough)
     except LpyLightError as exc:
         print("lpy-light: error: %s" % exc, file=sys.stderr)
         _remove_stale_results(getattr(args, "out", None))

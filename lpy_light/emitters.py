@@ -8,12 +8,15 @@ cylinder     isotropic line source on    Lambertian emission from the cylinder's
 sphere       isotropic point at centre    Lambertian emission from the sphere's surface
 polygon      Lambertian, front face       same
 ring         Lambertian, front face       same
+SEC2 point   isotropic point              same
 ===========  ==========================  ==================================================
 
 Photons are shared between emitters in proportion to their power
 Φ = π · L · A (L: mean of the RGB radiance, A: emitting area; for line and point
 sources the area of the cylinder or sphere they stand for), so identical lamps
-get identical shares.  Within a chunk the choice is stratified.
+get identical shares.  SEC2's ``point``/``point_light`` have no area: their light's
+value is read as a radiant intensity I, Φ = 4π · I.  Within a chunk the choice is
+stratified.
 """
 from __future__ import annotations
 
@@ -74,6 +77,10 @@ class EmitterBuilder:
     def sphere(self, center, radius, radiance, name):
         kind = EMIT_POINT if self.lamps == "line" else EMIT_SPHERE
         self._add(kind, [center, [radius, 0, 0]], math.pi * radiance * 4 * math.pi * radius ** 2, name)
+
+    def point(self, center, intensity, name):
+        """SEC2's point light: isotropic from ``center``, power 4π · ``intensity`` (whatever ``lamps`` says)."""
+        self._add(EMIT_POINT, [center], 4 * math.pi * intensity, name)
 
     def build(self) -> Emitters:
         return Emitters(np.array(self.kind, np.int32), np.array(self.data).reshape(-1, 3, 3),

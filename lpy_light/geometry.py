@@ -13,6 +13,9 @@ import math
 
 import numpy as np
 
+#: coordinates beyond this (in scene units) are refused: Embree traces in single precision
+MAX_COORDINATE = 1e12
+
 
 def newell_normal(points: np.ndarray) -> np.ndarray:
     """Area-weighted normal of a (possibly non-planar) polygon, (3,); its length is twice the area."""

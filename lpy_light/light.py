@@ -8,7 +8,7 @@ organ's light:
 
 * ``ppfd`` (B,) — incident photon flux density, µmol m⁻² s⁻¹: photons hitting
   the organ (either side) per second, divided by its one-sided area;
-* ``absorbed`` (B,) — µmol s⁻¹ absorbed by the organ;
+* ``absorbed`` (B,) — µmol s⁻¹ absorbed by the organ, and ``absorbed_par`` (µmol s⁻¹, 400-700 nm);
 * ``par`` (µmol m⁻² s⁻¹, when the bands tile 400-700 nm) and ``rfr`` = ppfd
   655-665 / ppfd 725-735 (when both bands are present);
 * and the standard error of each (``ppfd_std``, ...).
@@ -26,16 +26,19 @@ is put at ``position`` (chamber units; by default the scene's
 from __future__ import annotations
 
 import logging
+import math
 import time
 from collections.abc import Mapping
+from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from . import simulate, units
 from .errors import InputError
+from .messages import OncePerKind
 from .organs import TessellationCache, mesh_key, organ_from_mesh, plant_material
-from .scene import UNITS, load_scene
+from .scene import UNITS, load_scene, resolve_scene
 
 log = logging.getLogger("lpy_light")
 
@@ -64,6 +67,9 @@ class OrganLight:
     par_std: float = float("nan")
     rfr: float = float("nan")
     rfr_std: float = float("nan")
+    absorbed_par: float = float("nan")     # µmol s⁻¹ absorbed in the bands tiling 400-700 nm
+    absorbed_par_std: float = float("nan")
+    role: str = "target"         # "target", or "shading only": the organ blocks light, its own is not estimated
 
     def __getitem__(self, name):
         return getattr(self, name)
@@ -101,13 +107,20 @@ class LightModel:
         side), or ``{"reflectance": R, "transmittance": T}``.  Default: ``Leaf``
         with the Angers leaf tables (:data:`LEAF`).
     photons : int
-        Photons per step (per band: all bands travel together).
+        Photons per step (per band: all bands travel together); with ``precision``, the most a step may trace.
+    precision : float or None
+        Relative standard error to reach on every target organ's PAR and R:FR (each band's ppfd when the
+        bands give neither) before a step stops, e.g. 0.04; organs that receive no light are not waited
+        for.  None (default): exactly ``photons`` per step.
     plant_unit : str
         Unit of the plant's coordinates ('mm', 'cm', 'm', ...).
     position : (3,) or None
         Where the plant's origin goes, in chamber units.
-    parameter : str
-        Name of the module parameter that receives each organ's :class:`OrganLight`.
+    parameter : str, int, mapping or None
+        The module parameter that receives each organ's :class:`OrganLight`: its name (``"light"``), its
+        position (``2``: the third parameter, for models with positional parameters), a mapping module
+        name → name or position (``{"Leaf": 3, "Bud": 2}``), or None (nothing written: lighting a model
+        from outside, ``lpy-light grow --organs``).
     lamp_flux : (B,) or None
         µmol s⁻¹ emitted per band; default: from the scene's lamp spectrum, by a
         ``normalisation_photons`` run on the scene's sensors once (σ ≈ 0.4% at 1e6).
@@ -128,24 +141,41 @@ class LightModel:
         of their light that way, and counting it held over half their variance:
         0.05-1 events per vertex give the same σ, each 0.1 costing ~0.1 s per
         step (``benchmarks/rose.py --images``).
+    lamp_scale : float or mapping
+        Multiplies the lamps' photon flux: a number (dimmer or brighter lamps, all bands), or
+        ``{"LO-HI": factor}`` for the bands lying within LO-HI nm (``{"700-800": 2.0}``: a far-red
+        supplement of the same lamps, which lowers R:FR).  Default 1.
+    colour_top : float or None
+        PAR (µmol m⁻² s⁻¹) drawn in yellow in ``lpy-light grow``'s pictures: give the scale the model's
+        interpretation rules use in :func:`~lpy_light.plant_view.par_colour`, so both agree.
+    one_sided_organs : bool
+        An ablation for comparisons, not physics (default False): organs are seen from their front only
+        (the side their right-hand-rule normal points to), as engines that cull back faces see them (the
+        seed's photon mapping with ``$BACKFACE_CULLING yes``): a photon reaching an organ's back face
+        passes through it uncounted.  A leaf has two faces: leave it off to light a plant
+        (``benchmarks/seed_plant.py``, ``docs/validation.md``).
     """
 
     def __init__(self, scene="angers-12bands", organs=None, photons: int = 300_000, seed: int = 1,
                  threads: int | None = None, plant_unit: str = "cm", position=None, parameter: str = "light",
                  estimator: str = "nee", lamp_flux=None, normalisation_photons: int = 1_000_000,
-                 progress=None, nee_picks: int = 2, targets=None, mirror_events: float = 0.2):
-        from .cli import resolve_scene
-
+                 progress=None, nee_picks: int = 2, targets=None, mirror_events: float = 0.2,
+                 precision: float | None = None, lamp_scale=1.0, colour_top: float | None = None,
+                 one_sided_organs: bool = False):
         self.chamber = scene if hasattr(scene, "triangles") else load_scene(resolve_scene(str(scene)))
         if plant_unit not in UNITS:
             raise InputError("unknown plant_unit %r (use one of %s)" % (plant_unit, ", ".join(UNITS)))
         self.scale = UNITS[plant_unit] / self.chamber.metres_per_unit
         self.position = np.asarray(self._default_position() if position is None else position, dtype=float)
         self.organ_materials = dict(organs) if organs is not None else {"Leaf": LEAF}
-        self.photons, self.seed, self.threads = int(photons), int(seed), threads
+        self.photons, self.seed, self.threads = _photons(photons), int(seed), threads
+        if precision is not None and not (isinstance(precision, (int, float)) and 0 < precision < 1):
+            raise InputError("precision must be a relative standard error in (0, 1), e.g. 0.04; got %r" % (precision,))
+        self.precision = None if precision is None else float(precision)
         self.parameter = parameter
         self.progress = progress
         self.kscene = simulate.KernelScene(self.chamber, estimator=estimator)
+        self.kscene.one_sided_organs = bool(one_sided_organs)
         if int(nee_picks) < 0:
             raise InputError("nee_picks must be >= 0 (0 = every target at every vertex)")
         self.kscene.nee_picks = int(nee_picks)
@@ -166,7 +196,12 @@ class LightModel:
         self.on_step = None          # callback(step: StepResult, organs: list) after each L-Py step
         self.last_step = None
         self.last_organs = []
+        self.colour_top = colour_top      # PAR shown in yellow in the pictures (the viewer's par_colour scale)
+        self.messages = OncePerKind()     # each kind of warning once per model (a growth run), then counted
         self.flux, self.flux_std = self._lamp_flux(lamp_flux, normalisation_photons)
+        factor = lamp_factors(lamp_scale, self.chamber)
+        self.flux, self.flux_std = self.flux * factor, self.flux_std * factor
+        self._chamber_box = (self.chamber.triangles.min(axis=(0, 1)), self.chamber.triangles.max(axis=(0, 1)))
         MODELS.append(self)
 
     # -- set-up -------------------------------------------------------------------------
@@ -185,7 +220,7 @@ class LightModel:
             return self._materials_of(spec[0])[0], self._materials_of(spec[1])[0]
         try:
             name = spec if isinstance(spec, str) else "const(%s)" % ",".join(
-                "%s=%g" % kv for kv in sorted(dict(spec).items()))
+                ("%s=%s" if isinstance(v, str) else "%s=%g") % (k, v) for k, v in sorted(dict(spec).items()))
         except (TypeError, ValueError):
             raise InputError("organ material %r: expected a table name, a (front, back) pair or "
                              "{'reflectance': R, 'transmittance': T}" % (spec,)) from None
@@ -234,27 +269,81 @@ class LightModel:
         self.cache.end_step()
         return out
 
+    @contextmanager
+    def warnings_once(self):
+        """Within the block, each kind of warning is printed once for this model and counted (``messages``)."""
+        logger = logging.getLogger("lpy_light")
+        added = self.messages not in logger.filters
+        if added:
+            logger.addFilter(self.messages)
+        try:
+            yield self.messages
+        finally:
+            if added:
+                logger.removeFilter(self.messages)
+
     def run(self, organs: list, photons: int | None = None) -> StepResult:
         """Light ``organs`` (list of :class:`~lpy_light.organs.Organ`, chamber units) for one step."""
-        n = int(photons or self.photons)
+        with self.warnings_once():
+            return self._run(organs, photons)
+
+    def _run(self, organs, photons):
+        n = _photons(photons) if photons is not None else self.photons
         t0 = time.perf_counter()
+        if not organs:                         # nothing to light yet (a seedling before its first organ)
+            self.step += 1
+            return StepResult(self.step - 1, {}, 0, time.perf_counter() - t0, 0, 0, 0)
+        outside = self._outside(organs)
         targets = None if self.targets is None else [o.module in self.targets for o in organs]
         self.kscene.set_organs(organs, self.materials, targets)
         self.kscene.nee_sensors = False       # steps report organs; sensors are counted, not targeted
         self.kscene.nee_images = self.mirror_events
         self.kscene.retarget()
         if not self._pruned and organs:       # once, with the first plant: which vertices see organs
-            self.kscene.prune_next_events(threads=self.threads)
+            self.kscene.prune_next_events(threads=self.threads, keep=self.materials)   # organs' materials stay on
             self._pruned = True
+        read = np.ones(len(organs), bool) if targets is None else np.array(targets, bool)
+        precision_of = None
+        if self.precision is not None and read.any():
+            def precision_of(partial):
+                return largest_relative_sigma(self.kscene, partial, np.flatnonzero(read), self.chamber)
         result = simulate.run(self.kscene, n, seed=self.seed + self.step, threads=self.threads,
-                              progress=self.progress)
+                              progress=self.progress, precision=None if precision_of is None else self.precision,
+                              precision_of=precision_of)
         if result.interrupted:
             raise KeyboardInterrupt      # Ctrl-C ends the growth (cmd_grow keeps the steps done), not one step
-        lights = organ_lights(self.kscene, result, organs, self.flux, self.flux_std, self.chamber)
+        lights = organ_lights(self.kscene, result, organs, self.flux, self.flux_std, self.chamber, read)
         step = StepResult(self.step, lights, result.photons, time.perf_counter() - t0,
                           sum(len(o.triangles) for o in organs), 0, 0)
+        if self.precision is not None:
+            step.extra["precision"] = self.precision
+            step.extra["precision_reached"] = bool(result.extra.get("precision_reached", not read.any()))
+        if outside:
+            step.extra["outside_chamber"] = outside
         self.step += 1
         return step
+
+    def _outside(self, organs) -> list:
+        """Organs not inside the chamber's bounding box (warned once, in the plant's unit): a plant drawn in mm
+        but declared in cm, or placed at the wrong ``position``, would otherwise read 0 ± 0 without a word."""
+        if not organs:
+            return []
+        lo, hi = self._chamber_box
+        pad = 1e-6 * float(np.max(hi - lo))
+        out = []
+        for organ in organs:
+            olo, ohi = organ.triangles.min(axis=(0, 1)), organ.triangles.max(axis=(0, 1))
+            if (olo < lo - pad).any() or (ohi > hi + pad).any():
+                out.append(organ.key)
+        if out:
+            to_plant = lambda x: (np.asarray(x) - self.position) / self.scale      # noqa: E731
+            tri = np.concatenate([o.triangles.reshape(-1, 3) for o in organs if o.key in set(out)])
+            log.warning("%d organ(s) lie outside the chamber (keys %s): their bounding box is %s to %s, the "
+                        "chamber's %s to %s (plant units, plant origin at position %s chamber units): check "
+                        "plant_unit and position", len(out), ", ".join(map(str, out[:8])) + (" ..." if len(out) > 8 else ""),
+                        _xyz(to_plant(tri.min(axis=0))), _xyz(to_plant(tri.max(axis=0))), _xyz(to_plant(lo)),
+                        _xyz(to_plant(hi)), _xyz(self.position))
+        return out
 
     def intercept(self, organs, lscene=None):
         """Light the plant of this step.
@@ -267,14 +356,91 @@ class LightModel:
           ``frameDisplay(True)`` in ``StartEach`` (see :mod:`lpy_light.lpy`).
         * ``intercept({key: mesh or (mesh, material)})``: returns ``{key: OrganLight}``.
         """
-        if isinstance(organs, Mapping):
-            return self.run(self.organs_from_meshes(organs)).organs
-        from . import lpy
-        return lpy.intercept(self, organs, lscene)
+        with self.warnings_once():
+            if isinstance(organs, Mapping):
+                return self.run(self.organs_from_meshes(organs)).organs
+            from . import lpy
+            return lpy.intercept(self, organs, lscene)
 
 
-def organ_lights(kscene, result, organs, flux, flux_std, chamber) -> dict:
-    """Per organ: photons, ppfd, absorbed, PAR, R:FR, each with σ; ``{key: OrganLight}``."""
+def _photons(n) -> int:
+    """Photons per step, checked where they are given (a whole number ≥ 1)."""
+    try:
+        value = float(n)
+    except (TypeError, ValueError):
+        value = math.nan
+    if isinstance(n, bool) or not (value >= 1 and value == int(value) and value <= 1e15):
+        raise InputError("photons must be a whole number >= 1, got %r" % (n,))
+    return int(value)
+
+
+def _xyz(p) -> str:
+    return "(%s)" % ", ".join("%.4g" % x for x in p)
+
+
+def lamp_factors(lamp_scale, chamber) -> np.ndarray:
+    """(B,) factors on the lamps' flux per band from ``lamp_scale``: a number, or ``{"LO-HI": factor}``
+    applied to the bands lying within LO-HI nm (see :class:`LightModel`)."""
+    B = chamber.n_bands
+    if isinstance(lamp_scale, Mapping):
+        factor = np.ones(B)
+        if chamber.bands is None:
+            raise InputError("lamp_scale by band needs a scene with 'bands'")
+        for span, k in lamp_scale.items():
+            try:
+                lo, hi = (float(x) for x in str(span).split("-"))
+            except ValueError:
+                raise InputError("lamp_scale: expected keys 'LO-HI' in nm (e.g. '700-800'), got %r" % (span,)) from None
+            inside = [(b0 >= lo and b1 <= hi) for b0, b1 in chamber.bands]
+            if not any(inside):
+                raise InputError("lamp_scale: no band of the scene lies within %s nm (bands: %s)"
+                                 % (span, ", ".join(chamber.band_labels)))
+            factor[np.array(inside)] *= _factor(k)
+        return factor
+    return np.full(B, _factor(lamp_scale))
+
+
+def _factor(k) -> float:
+    try:
+        k = float(k)
+    except (TypeError, ValueError):
+        k = math.nan
+    if not (math.isfinite(k) and k >= 0):
+        raise InputError("lamp_scale: expected a factor >= 0, got %r" % (k,))
+    return k
+
+
+def largest_relative_sigma(kscene, result, rows, chamber) -> float:
+    """The largest relative σ among organs ``rows`` (indices into the step's organs): of PAR and R:FR where
+    the bands give them, else of each band's incident photons; organs with no light yet are not counted."""
+    r = kscene.n_sensors + kscene.n_chamber_receivers + np.asarray(rows)
+    if len(r) == 0 or result.photons < 2:
+        return math.inf
+    x = result.tally[r]
+    cov = result.covariance(r)
+    ones = np.ones_like(x)
+    par, par_std, rfr, rfr_std = units.par_and_rfr(x, cov, ones, np.zeros_like(x), chamber.bands)
+    rel = []
+    with np.errstate(divide="ignore", invalid="ignore"):
+        if par is not None:
+            rel.append(np.where(par > 0, par_std / par, np.nan))
+        if rfr is not None:
+            rel.append(np.where((x[:, units.band_index(chamber.bands, units.RED)] > 0)
+                                & (x[:, units.band_index(chamber.bands, units.FAR_RED)] > 0), rfr_std / rfr, np.nan))
+        if not rel:
+            std = np.sqrt(np.maximum(np.diagonal(cov, axis1=1, axis2=2), 0))
+            rel.append(np.where(x > 0, std / x, np.nan).max(axis=1))
+    rel = np.concatenate(rel)
+    rel = rel[np.isfinite(rel)]
+    return float(rel.max()) if rel.size else math.inf
+
+
+def organ_lights(kscene, result, organs, flux, flux_std, chamber, read=None) -> dict:
+    """Per organ: photons, ppfd, absorbed, PAR, R:FR, each with σ; ``{key: OrganLight}``.
+
+    ``read`` (n,) bool: the organs whose light is estimated (the targets); the others are
+    "shading only": they block and scatter light, and their numbers are NaN (empty cells), not
+    the few photons that happened to land on them."""
     R0, N = kscene.n_chamber_receivers, result.photons
     inc, inc_std = result.receivers_incident()
     ab, ab_std = result.receivers_absorbed()
@@ -295,6 +461,10 @@ def organ_lights(kscene, result, organs, flux, flux_std, chamber) -> dict:
     scale = flux[None, :] / N / np.maximum(areas, 1e-300)[:, None]
     scale_std = flux_std[None, :] / N / np.maximum(areas, 1e-300)[:, None]
     par, par_std, rfr, rfr_std = units.par_and_rfr(inc[rows], cov, scale, scale_std, chamber.bands)
+    absorbed_rows = result.n_sensors + kscene.n_receivers + rows
+    cov_ab = result.covariance(absorbed_rows) if len(organs) else cov
+    ab_par, ab_par_std, _, _ = units.par_and_rfr(ab[rows], cov_ab, np.broadcast_to(flux / N, scale.shape),
+                                                 np.broadcast_to(flux_std / N, scale.shape), chamber.bands)
     for i, organ in enumerate(organs):
         r = R0 + i
         ppfd, ppfd_std = scaled(inc[r], inc_std[r], areas[i])
@@ -305,8 +475,20 @@ def organ_lights(kscene, result, organs, flux, flux_std, chamber) -> dict:
             light.par, light.par_std = float(par[i]), float(par_std[i])
         if rfr is not None:
             light.rfr, light.rfr_std = float(rfr[i]), float(rfr_std[i])
+        if ab_par is not None:
+            light.absorbed_par, light.absorbed_par_std = float(ab_par[i]), float(ab_par_std[i])
+        if read is not None and not read[i]:
+            light = shading_only(light)
         out[organ.key] = light
     return out
+
+
+def shading_only(light: OrganLight) -> OrganLight:
+    """The light of an organ that is not a target: every number undefined (NaN), ``role`` says why."""
+    nan = np.full(len(light.bands), np.nan)
+    return replace(light, photons=nan, photons_std=nan, ppfd=nan, ppfd_std=nan, absorbed=nan, absorbed_std=nan,
+                   par=math.nan, par_std=math.nan, rfr=math.nan, rfr_std=math.nan, absorbed_par=math.nan,
+                   absorbed_par_std=math.nan, role="shading only")
 
 
 def organ_rows(step: StepResult) -> list:
@@ -318,5 +500,7 @@ def organ_rows(step: StepResult) -> list:
                          "ppfd": light.ppfd[b], "ppfd_std": light.ppfd_std[b],
                          "absorbed": light.absorbed[b], "absorbed_std": light.absorbed_std[b],
                          "photons": light.photons[b], "photons_std": light.photons_std[b],
-                         "area_m2": light.area_m2, "par": light.par, "rfr": light.rfr, "rfr_std": light.rfr_std})
+                         "area_m2": light.area_m2, "par": light.par, "par_std": light.par_std,
+                         "rfr": light.rfr, "rfr_std": light.rfr_std, "absorbed_par": light.absorbed_par,
+                         "absorbed_par_std": light.absorbed_par_std, "role": light.role})
     return rows

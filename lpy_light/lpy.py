@@ -28,6 +28,7 @@ by point is slow, so we use ``Point3Array.to_str`` (one C++ loop) when present.
 from __future__ import annotations
 
 import logging
+import time
 
 import numpy as np
 
@@ -80,23 +81,37 @@ def organs_from_meshes_by_id(meshes_by_id: dict, module_names: dict, model) -> l
     return organs
 
 
-def write_parameters(lstring, lights: dict, parameter: str) -> int:
-    """Write ``lights[i]`` into parameter ``parameter`` of module ``lstring[i]``; return how many.
+def write_parameters(lstring, lights: dict, parameter) -> int:
+    """Write ``lights[i]`` into module ``lstring[i]``; return how many were written.
 
-    Modules without that parameter (declare it: ``module Leaf(length, light)``)
-    are reported once per module name and left unchanged.
+    ``parameter`` is a parameter's name (``module Leaf(length, light)``: ``"light"``), its position
+    (``2``: the third parameter, as L-Py's own light example writes ``lstring[k][2] = v``: models with
+    positional parameters), or a mapping module name → name or position (``{"Leaf": 3, "Bud": 2}``).
+    Modules without it are warned about once per module name and left unchanged.
     """
-    written, missing = 0, set()
+    written, missing = 0, {}
     for key, light in lights.items():
         module = lstring[key]
-        if module.hasParameter(parameter):
-            module.setParameter(parameter, light)
+        where = parameter.get(module.name) if isinstance(parameter, dict) else parameter
+        if where is None:
+            continue
+        if isinstance(where, int) and not isinstance(where, bool):
+            if 0 <= where < len(module):
+                module[where] = light
+                written += 1
+                continue
+        elif module.hasParameter(where):
+            module.setParameter(where, light)
             written += 1
+            continue
+        missing[module.name] = where
+    for name, where in sorted(missing.items()):
+        if isinstance(where, int):
+            log.warning("module %s has no parameter at position %d: give it one more parameter to receive its light",
+                        name, where)
         else:
-            missing.add(module.name)
-    for name in sorted(missing):
-        log.warning("module %s has no parameter %r: declare 'module %s(..., %s)' to receive its light",
-                    name, parameter, name, parameter)
+            log.warning("module %s has no parameter %r: declare 'module %s(..., %s)' to receive its light",
+                        name, where, name, where)
     return written
 
 
@@ -194,13 +209,17 @@ def intercept(model, lstring, lscene):
                              "derive() unless the model calls frameDisplay(True) in StartEach — add "
                              "'def StartEach(): frameDisplay(True)' to the .lpy file")
     hits, misses = model.cache.hits, model.cache.misses
+    t0 = time.perf_counter()
     meshes, modules = shapes_by_module(lstring, lscene, set(model.organ_materials), model.cache)
     organs = organs_from_meshes_by_id(meshes, modules, model)
+    convert = time.perf_counter() - t0
     step = model.run(organs)
     step.reused, step.tessellated = model.cache.hits - hits, model.cache.misses - misses
+    step.extra["convert_seconds"] = convert
     model.last_step = step
     model.last_organs = organs
-    write_parameters(lstring, step.organs, model.parameter)
+    if model.parameter is not None:
+        write_parameters(lstring, step.organs, model.parameter)
     if model.on_step is not None:
         model.on_step(step, organs)
     return lstring, lscene

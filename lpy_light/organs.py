@@ -155,12 +155,30 @@ class TessellationCache:
         self._used = set()
 
 
+def _band_values(value, what, name, chamber) -> np.ndarray:
+    """(B,) values of one optical quantity: a constant for every band, or a table of the chamber's library
+    (``what``: "reflectance" or "transmittance") averaged over each band."""
+    n_bands = chamber.n_bands
+    if not isinstance(value, str):
+        return np.full(n_bands, float(value))
+    optical = getattr(chamber, "optical", None)
+    tables = (optical.reflectance if what == "reflectance" else optical.transmittance) if optical else {}
+    if value not in tables:
+        raise InputError("organ material %r: no %s table %r (known: %s)"
+                         % (name, what, value, ", ".join(sorted(tables)) or "none — the scene has no 'optical' folder"))
+    if chamber.bands is None:
+        raise InputError("organ material %r: the scene has no bands to read its tables on" % name)
+    return np.array([tables[value].band_mean(a, b) for a, b in chamber.bands])
+
+
 def plant_material(spec, name: str, chamber) -> Material:
     """A :class:`Material` for organs, per the chamber's bands.
 
     ``spec`` is a name of the chamber's optical library (reflectance and, when
-    present, transmittance tables; all diffuse), or a mapping with constant
-    ``reflectance`` / ``transmittance`` (and optional ``specular`` fraction).
+    present, transmittance tables; all diffuse), or a mapping with
+    ``reflectance`` / ``transmittance`` each a constant or a table's name (and an
+    optional constant ``specular`` fraction): ``{"reflectance": "FeuilleVieille_Sup"}``
+    is green tissue that transmits nothing (a stem, a closed bud).
     """
     bands = chamber.bands
     n_bands = chamber.n_bands
@@ -180,8 +198,8 @@ def plant_material(spec, name: str, chamber) -> Material:
     else:
         try:
             unknown = set(spec) - {"reflectance", "transmittance", "specular"}
-            R = np.full(n_bands, float(spec.get("reflectance", 0.0)))
-            T = np.full(n_bands, float(spec.get("transmittance", 0.0)))
+            R = _band_values(spec.get("reflectance", 0.0), "reflectance", name, chamber)
+            T = _band_values(spec.get("transmittance", 0.0), "transmittance", name, chamber)
             s = float(spec.get("specular", 0.0))
         except (AttributeError, TypeError, ValueError):
             raise InputError("organ material %r: expected a table name or {'reflectance': R, "
@@ -189,9 +207,11 @@ def plant_material(spec, name: str, chamber) -> Material:
         if unknown:
             raise InputError("organ material %r: unknown key %r (expected reflectance, transmittance, specular)"
                              % (name, sorted(unknown)[0]))
-        if not (0 <= R[0] <= 1 and 0 <= T[0] <= 1 and R[0] + T[0] <= 1):
+        if not (np.all((0 <= R) & (R <= 1)) and np.all((0 <= T) & (T <= 1))) or (
+                not isinstance(spec.get("reflectance", 0.0), str) and not isinstance(spec.get("transmittance", 0.0), str)
+                and R[0] + T[0] > 1):
             raise InputError("organ material %r: expected reflectance R and transmittance T in [0, 1] with "
-                             "R + T <= 1, got R = %g, T = %g" % (name, R[0], T[0]))
+                             "R + T <= 1, got R = %g, T = %g" % (name, R.max(), T.max()))
     R, T = np.clip(R, 0, 1), np.clip(T, 0, 1)
     if not 0 <= s <= 1:
         raise InputError("organ material %r: specular fraction must be in [0, 1]" % (name,))

@@ -2,9 +2,9 @@
 
 Scene files (TOML) name the inputs; paths are relative to the scene file::
 
-    geometry = "geometry/testChamber.rad"        # or a list of .rad files
+    geometry = "geometry/testChamber.rad"        # or a list of .rad (and .obj) files
     sensors = "sensors/captors_expe1.csv"          # or a list; optional
-    unit = "mm"                                    # mm (default), cm, m, km
+    unit = "mm"                                    # mm (default, or the unit of SEC2's scale_factor), cm, m, km
     optical = "optical"                            # folder of measured tables; optional
     specularities = "optical/Specularities.xlsx"   # or .csv; optional
     bands = [[655, 665]]                           # nm, [start, end); optional
@@ -12,6 +12,7 @@ Scene files (TOML) name the inputs; paths are relative to the scene file::
     solid_sensors = "receivers.rad"                # opaque sensors with a material; optional
     remove = ["fauxPlafondInf"]                    # identifiers to leave out; optional
     plant_position = [1020, 920, 900]              # where a plant's origin goes (scene units); optional
+    flip_normals = false                           # every geometry surface faces the other way; optional
     calibration = "measured.csv"                   # measured sensors -> ppfd scale per band; optional
                                                    # (or {file = "measured.csv", tolerance = 20})
 
@@ -24,6 +25,15 @@ Scene files (TOML) name the inputs; paths are relative to the scene file::
     max_depth = 50            # scattering events before a photon is cut
 
 Without ``bands`` the scene has one band, ``rad``, with the ``.rad`` values.
+
+Geometry files are Radiance ``.rad`` files (SEC2's dialect included: :mod:`lpy_light.radiance`) and
+Wavefront ``.obj`` files (:mod:`lpy_light.obj`), read in the order listed.  A ``.rad`` file that gives
+SEC2's ``scale_factor N`` has its lengths in 1/N metre: without ``unit`` the scene takes that unit,
+with one the file is converted to it.  An OBJ face's ``usemtl`` name is a material defined in a
+``.rad`` file listed before the OBJ, else the scene's optical tables of that name (a ``trans``
+material if there is a transmittance table, else ``plastic``; specular fraction from
+``specularities``).  ``flip_normals = true`` turns every surface of ``geometry`` to face the other
+way (photon_mapping's ``flip_normal``: for files written with their fronts facing out of the room).
 """
 from __future__ import annotations
 
@@ -41,14 +51,16 @@ from .emitters import EmitterBuilder, Emitters
 from .errors import InputError
 from .materials import EMITTING, Material, build_material
 from .optical import read_optical_folder, read_specularities
-from .radiance import MATERIAL_TYPES, SURFACE_TYPES, UNSUPPORTED_TYPES, read_rad
+from .radiance import MATERIAL_TYPES, SEC2_TYPES, SURFACE_TYPES, UNSUPPORTED_TYPES, Primitive, RadFile, read_rad
 from .sensors import Sensors, read_sensors
 
 log = logging.getLogger("lpy_light")
 
 UNITS = {"mm": 1e-3, "cm": 1e-2, "dm": 1e-1, "m": 1.0, "km": 1e3}
+#: SEC2's scale_factor (file units per metre) of each unit
+SCALE_FACTOR_UNITS = {1000.0: "mm", 100.0: "cm", 10.0: "dm", 1.0: "m", 0.001: "km"}
 _SCENE_KEYS = {"geometry", "sensors", "unit", "optical", "specularities", "bands", "solid_sensors", "remove",
-               "physics", "spectrum", "calibration", "name", "plant_position"}
+               "physics", "spectrum", "calibration", "name", "plant_position", "flip_normals"}
 _PHYSICS_KEYS = {"one_sided": bool, "lamps": str, "specular": str, "max_depth": int, "offset": float,
                  "coplanar": str, "materials": str}
 
@@ -163,7 +175,26 @@ def _is_number(x) -> bool:
 
 
 #: coordinates beyond this (in scene units) are refused: Embree traces in single precision
-MAX_COORDINATE = 1e12
+MAX_COORDINATE = geo.MAX_COORDINATE
+
+
+DATA = Path(__file__).parent / "data"
+
+
+def builtin_scenes() -> dict:
+    """The scenes shipped with lpy-light: ``{name: path of its TOML}`` (``lpy-light scenes`` lists them)."""
+    return {p.stem: p for p in sorted(DATA.glob("*/*.toml"))}
+
+
+def resolve_scene(name) -> Path:
+    """A scene file's path from a path or a built-in scene's name (``angers``, ``angers-12bands``, ...)."""
+    path = Path(name)
+    if path.exists():
+        return path
+    scenes = builtin_scenes()
+    if str(name) in scenes:
+        return scenes[str(name)]
+    raise InputError("scene file not found (built-in scenes: %s)" % ", ".join(scenes), name)
 
 
 def load_scene(path, **overrides) -> Chamber:
@@ -228,9 +259,12 @@ def chamber_from_spec(spec: dict, base: Path, name: str = "<scene>", text: str =
         inputs.extend(out)
         return out
 
-    unit = spec.get("unit", "mm")
-    if not isinstance(unit, str) or unit not in UNITS:
+    unit = spec.get("unit")
+    if unit is not None and (not isinstance(unit, str) or unit not in UNITS):
         raise err("unknown unit %r (use one of %s)" % (unit, ", ".join(UNITS)), "unit")
+    flip = spec.get("flip_normals", False)
+    if not isinstance(flip, bool):
+        raise err("'flip_normals' must be true or false", "flip_normals")
     bands = spec.get("bands")
     if bands is not None:
         if not isinstance(bands, list) or not bands:
@@ -305,12 +339,19 @@ def chamber_from_spec(spec: dict, base: Path, name: str = "<scene>", text: str =
     if pos is not None and not (isinstance(pos, list) and len(pos) == 3 and all(_is_number(x) for x in pos)):
         raise err("'plant_position' must be [x, y, z] in scene units (finite numbers), got %r" % (pos,),
                   "plant_position")
+    geometry_files = [read("geometry", read_geometry, p) for p in paths("geometry")]
+    solid_files = [read("solid_sensors", read_rad, p) for p in paths("solid_sensors")]
+    if unit is None:
+        unit = _unit_of(geometry_files + solid_files)
     prims = []
-    for p in paths("geometry"):
-        prims.extend(read("geometry", read_rad, p))
+    for part in geometry_files:
+        part = in_unit(part, unit)
+        if str(part.path).lower().endswith(".obj"):
+            part = _table_materials(prims, part, optical) + list(part)
+        prims.extend(part)
     solid = []
-    for p in paths("solid_sensors"):
-        solid.extend(read("solid_sensors", read_rad, p))
+    for part in solid_files:
+        solid.extend(in_unit(part, unit))
     sensors = Sensors.concat(read("sensors", read_sensors, p) for p in paths("sensors"))
     spectrum = None
     for p in paths("spectrum", many=False):
@@ -318,10 +359,11 @@ def chamber_from_spec(spec: dict, base: Path, name: str = "<scene>", text: str =
         spectrum = read("spectrum", read_lamp_spectrum, p)
     try:
         chamber = build_chamber(prims, sensors, bands=bands, optical=optical, specularities=specularities,
-                                physics=physics, unit=unit, solid=solid, remove=remove)
+                                physics=physics, unit=unit, solid=solid, remove=remove, flip=flip)
     except InputError as exc:    # the scene as a whole (no light), or a table that misses a band
         raise on_scene_line(exc, getattr(exc, "key", None)) from None
-    _warn_unused_tables(chamber, optical, specularities, spec_files[0] if spec_files else None)
+    has_obj = any(str(part.path).lower().endswith(".obj") for part in geometry_files)
+    _warn_unused_tables(chamber, optical, specularities, spec_files[0] if spec_files else None, has_obj)
     if spectrum is not None:
         if bands is None:
             raise err("'spectrum' (photons -> µmol m-2 s-1 per band) needs 'bands' (e.g. bands = [[655, 665]])",
@@ -351,11 +393,80 @@ def chamber_from_spec(spec: dict, base: Path, name: str = "<scene>", text: str =
     return chamber
 
 
-def _warn_unused_tables(chamber, optical, specularities, spec_path):
+def read_geometry(path) -> RadFile:
+    """One geometry file: Wavefront ``.obj`` by its suffix, else Radiance (SEC2's dialect included)."""
+    if Path(path).suffix.lower() == ".obj":
+        from .obj import read_obj
+        return read_obj(path)
+    return read_rad(path)
+
+
+def _unit_of(files) -> str:
+    """The scene's unit when the scene file names none: that of the first SEC2 ``scale_factor`` among
+    ``files``, else millimetres."""
+    for part in files:
+        if part.scale_factor is not None:
+            name = SCALE_FACTOR_UNITS.get(part.scale_factor)
+            if name is None:
+                raise InputError("scale_factor %g (lengths in 1/%g m) is none of lpy-light's units (%s): give the "
+                                 "scene's 'unit' and this file is converted to it"
+                                 % (part.scale_factor, part.scale_factor, ", ".join(UNITS)),
+                                 part.path, part.scale_line)
+            return name
+    return "mm"
+
+
+def in_unit(part: RadFile, unit: str) -> RadFile:
+    """The primitives of one file with their lengths in the scene's ``unit``: unchanged unless the file gives
+    SEC2's ``scale_factor N`` (lengths in 1/N m) for another unit.  Lengths: every real of a surface or
+    point light but a ring's normal and a spot light's angle and direction."""
+    if part.scale_factor is None:
+        return part
+    k = 1.0 / (part.scale_factor * UNITS[unit])
+    if math.isclose(k, 1.0, rel_tol=1e-12):
+        return part
+    log.info("%s:%d: scale_factor %g: lengths multiplied by %g into the scene's %s", part.path, part.scale_line,
+             part.scale_factor, k, unit)
+    out = RadFile(path=part.path, sec2=part.sec2, scale_factor=part.scale_factor, scale_line=part.scale_line)
+    for prim in part:
+        t, r = prim.type, list(prim.reals)
+        if t in SURFACE_TYPES or t in SEC2_TYPES:
+            lengths = {"ring": (0, 1, 2, 6, 7), "spot_light": (0, 1, 2)}.get(t, range(len(r)))
+            for j in lengths:
+                if j < len(r):
+                    r[j] *= k
+            prim = Primitive(prim.modifier, t, prim.identifier, prim.strings, prim.ints, r, prim.path, prim.line)
+        out.append(prim)
+    return out
+
+
+def _table_materials(before, part, optical) -> list:
+    """Material primitives for the ``usemtl`` names of an OBJ file (``part``) that no ``.rad`` file listed
+    before it defines (``before``: the primitives read so far) but that the optical tables have: ``trans``
+    with a transmittance table, else ``plastic``; all their values come from the tables (and the
+    specularities).  Names with neither are left to :func:`build_chamber`'s error, at the face's line."""
+    defined = {p.identifier for p in before if p.type in MATERIAL_TYPES}
+    tables = {} if optical is None else {**optical.reflectance, **optical.transmittance}
+    made, out = set(), []
+    for face in part:
+        name = face.modifier
+        if name in defined or name in made or name not in tables:
+            continue
+        made.add(name)
+        trans = name in optical.transmittance
+        out.append(Primitive("void", "trans" if trans else "plastic", name, [], [], [0.0] * (7 if trans else 5),
+                             face.path, face.line))
+        log.info("%s: material %r (usemtl) from the optical tables: %s", face.where, name,
+                 "trans" if trans else "plastic")
+    return out
+
+
+def _warn_unused_tables(chamber, optical, specularities, spec_path, has_obj=False):
     """Warn about measured values that no material of the scene uses: a table or specularity whose name
     differs from a material's only in case (names are case-sensitive, as in Radiance), or a table outside
     a ``Plant`` folder (those are for organs) named after no material — the material then silently keeps
-    its ``.rad`` values."""
+    its ``.rad`` values.  With OBJ geometry (materials made from the tables by name) a table no face uses
+    is only a table of the library, and only the first warning is given."""
     names = {m.name for m in chamber.materials}
     lower = {n.lower(): n for n in names}
 
@@ -366,7 +477,8 @@ def _warn_unused_tables(chamber, optical, specularities, spec_path):
     for kind, tables in ((("reflectance", optical.reflectance), ("transmittance", optical.transmittance))
                          if optical is not None else ()):
         for name, table in tables.items():
-            if name not in names and (name.lower() in lower or "Plant" not in Path(table.path).parts):
+            if name not in names and (name.lower() in lower or ("Plant" not in Path(table.path).parts
+                                                                and not has_obj)):
                 log.warning("%s: no material %r in the scene uses this %s table%s", table.path, name, kind, hint(name))
     for name in specularities or {}:
         if name not in names and name.lower() in lower:
@@ -387,14 +499,41 @@ def _check_arguments(prim):
                             len(prim.strings), " ".join(prim.strings)), prim.path, prim.line)
 
 
+def _point_light(prim, materials, current, emit, is_receiver):
+    """SEC2's ``point`` (its radius ignored, as SEC2 does) or ``point_light``: an isotropic point at the
+    centre with its light material's power; ``spot_light`` is refused (its cone is not documented)."""
+    t, name = prim.type, prim.identifier
+    if is_receiver:
+        raise InputError("%s %s: a light source cannot be a solid sensor" % (t, name), prim.path, prim.line)
+    if t == "spot_light":
+        raise InputError("spot_light %s: SEC2's spot lights are not supported: how SEC2 spreads their light in "
+                         "the cone (half or full angle, uniform or not) is not known from any file or document at "
+                         "hand; use a point_light (isotropic) or a light polygon" % name, prim.path, prim.line)
+    if prim.modifier not in current:
+        raise InputError("%s %s uses undefined modifier %r (a light material defined before it)"
+                         % (t, name, prim.modifier), prim.path, prim.line)
+    material = materials[current[prim.modifier]]
+    if material.type not in EMITTING:
+        raise InputError("%s %s uses %r, a %s: a point light needs a light (or glow) material"
+                         % (t, name, prim.modifier, material.type), prim.path, prim.line)
+    big = max(abs(x) for x in prim.reals[:3])
+    if big > MAX_COORDINATE:
+        raise InputError("%s %s: coordinate %g is beyond ±%g scene units (the tracer works in single precision); "
+                         "is the unit right?" % (t, name, big, MAX_COORDINATE), prim.path, prim.line)
+    if material.radiance > 0:
+        emit.point(prim.reals[:3], material.radiance, name)
+
+
 def build_chamber(prims, sensors=None, bands=None, optical=None, specularities=None, physics=None,
-                  unit="mm", solid=(), remove=()) -> Chamber:
+                  unit="mm", solid=(), remove=(), flip=False) -> Chamber:
     """Turn Radiance primitives into a :class:`Chamber`.
 
     Materials are looked up as Radiance does: the latest definition before the
     surface that uses it.  ``solid`` primitives become opaque receivers (one per
     surface).  ``remove`` leaves out every primitive with one of these
-    identifiers (and errors if one matches nothing).
+    identifiers (and errors if one matches nothing).  ``flip``: every surface of
+    ``prims`` faces the other way (not ``solid``).  SEC2's ``point`` and
+    ``point_light`` are isotropic points (:meth:`EmitterBuilder.point`).
     """
     physics = physics or Physics()
     n_bands = 1 if bands is None else len(bands)
@@ -426,6 +565,9 @@ def build_chamber(prims, sensors=None, bands=None, optical=None, specularities=N
             materials.append(build_material(prim, bands, optical, specularities, physics.materials))
             current[prim.identifier] = len(materials) - 1
             continue
+        if t in SEC2_TYPES:
+            _point_light(prim, materials, current, emit, is_receiver)
+            continue
         if t in UNSUPPORTED_TYPES:
             raise InputError("Radiance type %r is not supported by lpy-light (%s %s)" % (t, t, prim.identifier),
                              prim.path, prim.line)
@@ -445,7 +587,9 @@ def build_chamber(prims, sensors=None, bands=None, optical=None, specularities=N
                 raise InputError("surface %s uses modifier %r, which was skipped (%s)"
                                  % (prim.identifier, prim.modifier, skipped_types[prim.modifier].where),
                                  prim.path, prim.line)
-            raise InputError("surface %s %s uses undefined modifier %r" % (t, prim.identifier, prim.modifier),
+            hint = (" (an OBJ's usemtl names a material defined in a .rad file listed before the OBJ in "
+                    "'geometry', or one the optical tables have)" if prim.path.lower().endswith(".obj") else "")
+            raise InputError("surface %s %s uses undefined modifier %r%s" % (t, prim.identifier, prim.modifier, hint),
                              prim.path, prim.line)
         m = current[prim.modifier]
         material = materials[m]
@@ -495,6 +639,8 @@ def build_chamber(prims, sensors=None, bands=None, optical=None, specularities=N
             raise InputError("%s %s: %s" % (t, prim.identifier, exc), prim.path, prim.line) from None
         if surf is None:
             continue
+        if flip and not is_receiver:
+            surf = surf[:, ::-1].copy()
         if emitting:
             emit.triangles(surf, material.radiance, prim.identifier)
         surfaces.append((prim.identifier, t, prim.where))
@@ -514,6 +660,11 @@ def build_chamber(prims, sensors=None, bands=None, optical=None, specularities=N
         error.key = "remove"
         raise error
     emitters = emit.build()
+    points = [p for p in prims if p.type in SEC2_TYPES and p.identifier in emitters.name]
+    if points and len(points) < len(set(emitters.name)):
+        log.warning("%s: the scene has SEC2 point lights and other lamps: photons are shared by power, a point "
+                    "light's r g b read as a radiant intensity I (power 4πI), a lamp surface's as a radiance L "
+                    "(power πLA); SEC2's own share between them is not known", points[0].where)
     if len(emitters) == 0:
         dark = [p for p in prims if p.type in ("light", "glow") and not any(x > 0 for x in p.reals[:3])]
         if dark:       # a lamp whose radiance is zero or negative: point at it

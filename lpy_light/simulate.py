@@ -270,12 +270,36 @@ class KernelScene:
         self.emit_nee = np.ones(len(em.kind), np.uint8)
         self.mat_nee = np.ones(0, np.uint8)
         self.organs = []
+        # organs seen from their front only, as one-sided surfaces: a photon meets no back face (it passes
+        # through).  An ablation, to compare with engines that cull back faces (the seed's photon mapping,
+        # benchmarks/seed_plant.py), not physics: a leaf has two faces.  Takes effect at set_organs().
+        self.one_sided_organs = False
         self._assemble(np.zeros((0, 3, 3)), np.zeros((0, 2), np.int32), np.zeros(0, np.int32))
+
+    # A KernelScene pickles without its Embree scene and the C function addresses (a ctypes handle and
+    # this process's pointers): unpickling rebuilds them from the same triangles, so a copy on another
+    # process or machine (a Dask worker: lpy_light.cluster) traces bitwise what this one traces, with
+    # every setting and the pruning outcome as they are here.
+    _NOT_PICKLED = ("scene", "intersect", "occluded")
+
+    def __getstate__(self):
+        return {k: v for k, v in self.__dict__.items() if k not in self._NOT_PICKLED}
+
+    def __setstate__(self, state):
+        self.__dict__.update(state)
+        self.intersect = embree.intersect1_address()
+        self.occluded = embree.occluded1_address()
+        n_one, n = int(self.geom_offset[1]), self.n_chamber_triangles
+        sensors = self.chamber.sensors
+        self.scene = embree.EmbreeScene(one_sided=self._chamber_verts[:n_one], two_sided=self._chamber_verts[n_one:n],
+                                        sensors=sensors.bounding_triangles() if len(sensors) else None)
+        if self.organs:
+            self.scene.set_organs(self.tri_verts[n:], one_sided=getattr(self, "one_sided_organs", False))
 
     def _assemble(self, verts, mat, receiver):
         self.tri_verts = np.ascontiguousarray(np.concatenate([self._chamber_verts, verts]))
         normal = triangle_normals(verts) if len(verts) else np.zeros((0, 3))
-        self.two_sided = np.concatenate([self._chamber_two_sided, np.ones(len(verts), bool)])
+        self.two_sided = np.concatenate([self._chamber_two_sided, np.full(len(verts), not self.one_sided_organs)])
         self.tri_normal = np.ascontiguousarray(np.concatenate([self._chamber_normal, normal]))
         self.tri_mat = np.ascontiguousarray(np.concatenate([self._chamber_mat, mat]).astype(np.int32))
         self.tri_receiver = np.ascontiguousarray(np.concatenate([self._chamber_receiver, receiver]).astype(np.int32))
@@ -329,7 +353,7 @@ class KernelScene:
             self.zones = Zones(0.0, np.zeros((0, 14)), np.zeros((0, 2), np.int64), np.zeros(n_tgt + 1, np.int64))
 
     def prune_next_events(self, photons: int = 8192, max_share: float = 0.0, seed: int = 987654321,
-                          threads=None, min_plane_share: float = 0.01) -> dict:
+                          threads=None, min_plane_share: float = 0.01, min_rays: int = 256, keep=()) -> dict:
         """Switch off next events from vertices whose shadow rays bring (almost) nothing.
 
         A pilot run sums, per material and per emitter element, the shadow rays
@@ -342,7 +366,13 @@ class KernelScene:
         choice is unbiased; this only saves shadow rays.  (A share of the total,
         1e-3 before the eighth session, switched off a table whose light was
         most of a 3 mm sensor's above it: that sensor then waited for photons
-        to cross it, and read 3e-9 ± 9e-9 for 3.7e-6.)
+        to cross it, and read 3e-9 ± 9e-9 for 3.7e-6.)  A source is switched
+        off only on evidence: at least ``min_rays`` pilot shadow rays, none of
+        which found a target (the floor below the Angers table cast ~40 rays in
+        the pilot; switched off, the light it sends up to the rose's buds was
+        counted, and held most of their variance: PAR spread 10-25 % over seeds
+        against 1-7 % with it on); a source with fewer rays costs next to nothing
+        anyway.  Materials named in ``keep`` (the plant's organs) stay on.
         Mirror planes are switched off only when they brought less than
         ``min_plane_share`` of the light of all next events through mirrors (not
         by ``max_share``: a plane's light is then counted, rarely and at a high
@@ -368,8 +398,9 @@ class KernelScene:
         on = np.ones(len(stats), bool)
         lost = 0.0
         E = len(self.emit_nee)
+        kept = {i for i, m in enumerate(self.materials) if m.name in set(keep)}
         for i in np.argsort(weight / np.maximum(cast, 1.0)):    # least weight per ray first
-            if cast[i] == 0 or i >= M + E:
+            if cast[i] < max(min_rays, 1) or i >= M + E or i in kept:
                 continue          # (mirror planes: by their share below -- a plane's light lost is counted,
                                   # rarely and at a high price, while its events cost only when drawn)
             if lost + weight[i] > max_share * total_w:
@@ -426,7 +457,7 @@ class KernelScene:
         else:
             tris = None
             self._assemble(np.zeros((0, 3, 3)), np.zeros((0, 2), np.int32), np.zeros(0, np.int32))
-        self.scene.set_organs(tris)
+        self.scene.set_organs(tris, one_sided=self.one_sided_organs)
 
     def _mirror_draw(self):
         """(planes in use (int32), their cumulative draw probabilities, 1 / probability) for image events."""
@@ -512,9 +543,59 @@ def relative_sigma(tally, tally_prod, n, rows, samples=None) -> np.ndarray:
     return rel.ravel()
 
 
+class LocalThreads:
+    """Chunks traced by a pool of threads in this process: :func:`run`'s default executor.
+
+    An executor of :func:`run` is where chunks are traced, and only that; the merge in chunk
+    order, ``precision``, ``progress`` and interrupts are :func:`run`'s, whatever the executor.
+    Its methods:
+
+    * ``open(kscene, n_chunks) -> slots``: get ready to trace ``kscene``; ``slots`` is how many
+      tasks it runs at once (:func:`run` keeps ``2 · slots`` submitted);
+    * ``chunks_per_task`` (read after ``open``): consecutive chunks in one task (1 here);
+    * ``submit(seed, chunks) -> future``: ``[kscene.trace(seed, first, count) for first, count in
+      chunks]`` somewhere, a future with ``result()`` and ``cancel()`` (:func:`run` sums each chunk's
+      tallies alone, in chunk order, and cancels the tasks it will not sum);
+    * ``close()``: release what ``open`` took;
+    * ``describe() -> dict``: where the run was traced, for ``summary.json`` (empty here).
+
+    ``threads``: the chunks traced at once, known before ``open`` (memory check).
+    :class:`lpy_light.cluster.DaskChunks` is the other one: chunks as tasks on a Dask cluster.
+    """
+
+    def __init__(self, threads: int | None = None):
+        threads = threads or default_threads()
+        if isinstance(threads, bool) or not isinstance(threads, (int, np.integer)) or not 1 <= threads <= MAX_THREADS:
+            raise InputError("threads must be in 1..%d, got %r" % (MAX_THREADS, threads))
+        self.threads = int(threads)
+        self._pool = self._kscene = self._records = None
+
+    def open(self, kscene, n_chunks: int) -> int:
+        self._kscene = kscene
+        self._records = kscene.records()                 # the kernel's records, once for the run
+        self.threads = min(self.threads, n_chunks)      # more threads than chunks would only wait
+        self._pool = ThreadPoolExecutor(max_workers=self.threads)
+        return self.threads
+
+    chunks_per_task = 1
+
+    def submit(self, seed: int, chunks):
+        (first, count), = chunks
+        return self._pool.submit(lambda: [self._kscene.trace(seed, first, count, self._records)])
+
+    def close(self):
+        if self._pool is not None:
+            self._pool.shutdown(wait=True)      # chunks already running finish (and are not summed)
+            self._pool = self._kscene = self._records = None
+
+    def describe(self) -> dict:
+        return {}
+
+
 def run(kscene: KernelScene, photons: int, seed: int = 1, threads: int | None = None, progress=None,
-        stop=None, precision: float | None = None, precision_rows=None, min_photons: int = 4 * CHUNK) -> Result:
-    """Trace ``photons`` photons over ``threads`` threads.
+        stop=None, precision: float | None = None, precision_rows=None, min_photons: int = 4 * CHUNK,
+        precision_of=None, executor=None) -> Result:
+    """Trace ``photons`` photons over ``threads`` threads (or on ``executor``).
 
     ``progress(done, total, seconds)`` is called as chunks finish;  ``stop()``
     returning True ends the run early: the result then holds the chunks finished
@@ -529,20 +610,24 @@ def run(kscene: KernelScene, photons: int, seed: int = 1, threads: int | None = 
     the sensors, else the receivers' incident rows) that has a value has a
     relative σ ≤ ``precision`` (checked in chunk order after ``min_photons``,
     so the stopping point depends on the seed only); ``photons`` is then a cap.
+    ``precision_of(result)``, if given, replaces that rule: it gets a :class:`Result` of the photons so
+    far and returns the largest relative σ of what the caller reads (e.g. organs' PAR and R:FR).
     ``extra["precision_reached"]`` says whether it was met.  ``progress`` then
     gets, as its total, the photons that the largest σ so far says are needed.
+
+    ``executor``: where the chunks are traced (see :class:`LocalThreads`, the
+    default, with ``threads``; :class:`lpy_light.cluster.DaskChunks` on a Dask
+    cluster).  Chunk c's photons and random streams are the same wherever it runs
+    and chunks are summed here in chunk order, so the numbers do not depend on it.
     """
     if photons < 1:
         raise ValueError("photons must be >= 1")
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or not 0 <= seed <= MAX_SEED:
         raise InputError("the seed must be a whole number in 0..2^63-1, got %r" % (seed,))
-    threads = threads or default_threads()
-    if not 1 <= threads <= MAX_THREADS:
-        raise InputError("threads must be in 1..%d, got %r" % (MAX_THREADS, threads))
+    executor = executor if executor is not None else LocalThreads(threads)
     n_chunks = math.ceil(photons / CHUNK)
-    threads = min(threads, n_chunks)      # more threads than chunks would only wait
     n_stats = len(kscene.materials) + len(kscene.emit_nee) + len(getattr(kscene, "mir_point", ()))
-    check_memory(kscene.n_rows, kscene.n_bands, threads, n_stats=n_stats)
+    check_memory(kscene.n_rows, kscene.n_bands, min(getattr(executor, "threads", 1), n_chunks), n_stats=n_stats)
     acc = [np.zeros((kscene.n_rows, kscene.n_bands)), np.zeros((kscene.n_rows, kscene.n_bands, kscene.n_bands)),
            np.zeros(N_COUNTERS, np.int64), np.zeros((n_stats, 3))]
 
@@ -552,7 +637,6 @@ def run(kscene: KernelScene, photons: int, seed: int = 1, threads: int | None = 
     done = 0
     partial = interrupted = False
     start = time.perf_counter()
-    window = 2 * threads
     reached = None
     if precision is not None:
         if precision_rows is None:
@@ -560,6 +644,16 @@ def run(kscene: KernelScene, photons: int, seed: int = 1, threads: int | None = 
                               kscene.n_sensors + np.arange(kscene.n_receivers))
         precision_rows = np.asarray(precision_rows, dtype=np.int64)
         reached = False
+
+    def largest_sigma(acc, done) -> float:
+        """The largest relative σ the precision goal is about (inf while nothing is tallied)."""
+        if precision_of is not None:
+            return float(precision_of(Result(done, acc[0], acc[1], acc[2], 0.0, threads, seed, kscene.n_sensors,
+                                             kscene.n_receivers, estimator=kscene.estimator)))
+        rel = relative_sigma(acc[0], acc[1], done, precision_rows,
+                             effective_samples(done, acc[2], kscene.n_rows, kscene.n_sensors))
+        return float(rel.max()) if rel.size else float("inf")
+
     # (sums, photons) change together in one assignment, so that an interrupt (KeyboardInterrupt)
     # arriving anywhere leaves the sums of exactly ``done`` photons: a correctly normalised prefix
     state = (acc, 0)
@@ -568,56 +662,58 @@ def run(kscene: KernelScene, photons: int, seed: int = 1, threads: int | None = 
     batch = getattr(kscene, "nee_batch", None)
     if batch is not None and photons < 64 * batch:
         kscene.nee_batch = 1
+    slots = 1
+    pending = []
     try:
-        scene = kscene.records()        # the kernel's records, once for the run
-        with ThreadPoolExecutor(max_workers=threads) as pool:
-            pending = []
+        try:
+            slots = executor.open(kscene, n_chunks)       # after nee_batch: an executor may copy the scene
+            per_task = max(1, int(getattr(executor, "chunks_per_task", 1)))
+            window = 2 * slots                                # tasks submitted ahead
             next_chunk = 0
-            try:
-                while next_chunk < n_chunks or pending:
-                    while next_chunk < n_chunks and len(pending) < window:
-                        first, count = chunk(next_chunk)
-                        pending.append((count, pool.submit(kscene.trace, seed, first, count, scene)))
-                        next_chunk += 1
-                    count, fut = pending[0]
-                    part = fut.result()
+            ended = False
+            while not ended and (next_chunk < n_chunks or pending):
+                while next_chunk < n_chunks and len(pending) < window:
+                    group = [chunk(c) for c in range(next_chunk, min(next_chunk + per_task, n_chunks))]
+                    pending.append((group, executor.submit(seed, group)))
+                    next_chunk += len(group)
+                group, fut = pending[0]
+                parts = fut.result()
+                pending.pop(0)
+                for (first, count), part in zip(group, parts):     # one chunk at a time, in chunk order
                     state = ([a + p for a, p in zip(state[0], part)], state[1] + count)
-                    pending.pop(0)
                     acc, done = state
                     worst = None         # with ``precision``: the largest relative σ so far
                     if precision is not None and done >= min(min_photons, photons) and done < photons:
-                        rel = relative_sigma(acc[0], acc[1], done, precision_rows,
-                                             effective_samples(done, acc[2], kscene.n_rows, kscene.n_sensors))
-                        worst = float(rel.max()) if rel.size else float("inf")   # nothing tallied yet
+                        worst = largest_sigma(acc, done)
                     if progress:
                         # with ``precision``, the photons it should take (σ ∝ 1/√N), capped at ``photons``
                         total = photons if not worst or not np.isfinite(worst) else \
                             int(min(photons, max(done, done * (worst / precision) ** 2)))
                         progress(done, total, time.perf_counter() - start)
                     if stop is not None and stop() and done < photons:
-                        partial = True
+                        partial = ended = True
                         break
                     if worst is not None and worst <= precision:
-                        reached = True
+                        reached = ended = True
                         break
-            except KeyboardInterrupt:
-                partial, interrupted = state[1] < photons, True
-            finally:
-                for _, fut in pending:
-                    fut.cancel()
+        except KeyboardInterrupt:
+            partial, interrupted = state[1] < photons, True
+        finally:
+            for _, fut in pending:
+                fut.cancel()
+            executor.close()
     finally:
         if batch is not None:
             kscene.nee_batch = batch
     acc, done = state
     seconds = time.perf_counter() - start
-    result = Result(done, acc[0], acc[1], acc[2], seconds, threads, seed, kscene.n_sensors, kscene.n_receivers,
+    result = Result(done, acc[0], acc[1], acc[2], seconds, slots, seed, kscene.n_sensors, kscene.n_receivers,
                   estimator=kscene.estimator, materials=[m.name for m in kscene.materials], nee_stats=acc[3],
                   partial=partial, interrupted=interrupted)
+    result.extra.update(executor.describe())
     if precision is not None:
         if not reached and done == photons:
-            rel = relative_sigma(acc[0], acc[1], done, precision_rows,
-                                 effective_samples(done, acc[2], kscene.n_rows, kscene.n_sensors))
-            reached = bool(rel.size and rel.max() <= precision)
+            reached = bool(largest_sigma(acc, done) <= precision)
         result.extra["precision_reached"] = reached
         result.extra["precision"] = precision
     return result

@@ -467,7 +467,7 @@ ORGAN_CASES = [
      "R + T <= 1"),
     ("material-typo", lambda o: o.plant_material({"reflectanse": .5}, "m", _NoTables()), "unknown key"),
     ("material-text", lambda o: o.plant_material({"reflectance": "half"}, "m", _NoTables()),
-     "expected a table name"),
+     "no reflectance table 'half'"),
     ("material-number", lambda o: o.plant_material(5, "m", _NoTables()), "expected a table name"),
 ]
 
@@ -497,7 +497,7 @@ def light_chamber(tmp_path_factory):
 
 @pytest.mark.parametrize("organs_spec, words", [
     ({"Leaf": 5}, "expected a table name"),
-    ({"Leaf": {"reflectance": "x"}}, "expected a table name"),
+    ({"Leaf": {"reflectance": "x"}}, "no reflectance table 'x'"),
     ({"Leaf": ("wall",)}, "(front, back) pair"),
     ({"Leaf": "Feuille"}, "no optical table"),
 ])

@@ -48,7 +48,7 @@ def test_precision_stops_when_every_sensor_is_there(tmp_path):
     sensor was the slowest.  Too small a cap: the cap's photons, and "NOT reached"."""
     scene = write_scene(tmp_path / "s", RAD, SENSORS)
     out = tmp_path / "p"
-    p = _run("run", scene, "--precision", "0.02", "--photons", "1e8", "--seed", 5, "--out", out)
+    p = _run("run", scene, "--precision", "0.02", "--photons", "1e8", "--seed", 5, "--out", out, "--estimator", "weighted")
     assert p.returncode == 0, p.stderr
     summary = json.load(open(out / "summary.json"))
     rows = list(csv.DictReader(open(out / "sensors.csv")))
@@ -57,9 +57,10 @@ def test_precision_stops_when_every_sensor_is_there(tmp_path):
     assert max(rel) <= 0.02 and max(rel) > 0.015          # stopped at the first check past the goal
     assert summary["relative_sigma"]["max"] == pytest.approx(max(rel))
     assert summary["relative_sigma"]["max_at"]["sensor"] == rel.index(max(rel))
-    assert "--precision 0.02 reached" in p.stderr
+    assert "goal 2 % reached" in p.stderr
     plain = tmp_path / "plain"
-    p2 = _run("run", scene, "--photons", summary["photons"], "--seed", 5, "--out", plain, "--quiet")
+    p2 = _run("run", scene, "--photons", summary["photons"], "--seed", 5, "--out", plain, "--quiet",
+              "--estimator", "weighted")
     assert p2.returncode == 0, p2.stderr
     assert (plain / "sensors.csv").read_text() == (out / "sensors.csv").read_text()
     p3 = _run("run", scene, "--precision", "1e-4", "--photons", "5e4", "--out", tmp_path / "cap")
@@ -86,3 +87,23 @@ def test_bad_input_one_line_no_traceback_no_results(tmp_path, mutate, where):
     assert len(lines) == 1 and "Traceback" not in p.stderr, p.stderr
     assert where in lines[0] and lines[0].startswith("lpy-light: error:")
     assert not out.exists() or not any(out.iterdir())
+
+
+def test_default_run_is_nee_to_one_percent_and_says_what_it_wrote(tmp_path):
+    """Without --photons or --precision, ``run`` gives the best answer: next events, every sensor's σ ≤ 1 %
+    (checked from the files), and its last lines say how precise it is and where the results are.
+    ``--photons`` alone keeps its meaning (exactly that many photons, no precision goal)."""
+    scene = write_scene(tmp_path / "s", RAD, SENSORS)
+    out = tmp_path / "d"
+    p = _run("run", scene, "--seed", 2, "--out", out)
+    assert p.returncode == 0, p.stderr
+    summary = json.load(open(out / "summary.json"))
+    assert summary["estimator"] == "nee" and summary["precision"] == 0.01 and summary["precision_reached"]
+    rows = list(csv.DictReader(open(out / "sensors.csv")))
+    assert max(float(r["photons_std"]) / float(r["photons"]) for r in rows) <= 0.01
+    assert "goal 1 % reached" in p.stderr and ("results in %s: sensors.csv" % out) in p.stderr
+    fixed = tmp_path / "f"
+    p2 = _run("run", scene, "--photons", 40000, "--out", fixed, "--quiet")
+    assert p2.returncode == 0, p2.stderr
+    summary = json.load(open(fixed / "summary.json"))
+    assert summary["photons"] == 40000 and "precision" not in summary and summary["estimator"] == "nee"

@@ -19,7 +19,7 @@ from hypothesis import strategies as st
 from lpy_light import cli, simulate
 from lpy_light.errors import InputError, LpyLightError, ResourceError
 from lpy_light.radiance import parse_rad, read_rad
-from lpy_light.scene import Physics, build_chamber, load_scene
+from lpy_light.scene import Physics, build_chamber, load_scene, resolve_scene
 from lpy_light.sensors import DISC, Sensors
 from scenes import box, lamp_rectangle, rad_polygon, write_scene
 
@@ -172,6 +172,111 @@ def test_fuzz_scene_build(bands, one_sided, lamps, specular, text):
 
 
 # ------------------------------------------------------------------------------------------
+# Fuzzing SEC2's dialect and OBJ chambers: whole lines mutated (comments and line ends carry meaning there)
+VALID_SEC2 = ("# chambre\n\nscale_factor 100\n\nvoid light lamp32w\n0\n0\n1\n0.32 0.32 0.32\n\n"
+              "void plastic grey\n0\n0\n5\n0.5 0.5 0.5 0.1 0\n\n"
+              + box("grey", (0, 0, 0), (100, 100, 110))
+              + "lamp32w point_light neon1\n50 50 90 # centre\n#150 # longueur\n#0 0 1 # direction\n\n"
+              + "lamp32w point ampoule\n20 20 80 1.5\n\nlamp32w point_light neon2 0 0 3 60 60 90\n")
+SEC2_ODD = ["scale_factor", "scale_factor 0", "scale_factor 1000", "scale_factor nan", "point", "point_light",
+            "spot_light", "lamp32w spot_light s", "12 5 2", "170", "1 0 1", "# centre", "150", "0 0 3", "1e999",
+            "-1", "0", "lamp32w point_light n", "grey point_light n", "x point p", "#", "0.32", "\x00", "\xe9"]
+VALID_OBJ = ("mtllib c.mtl\no room\nusemtl grey\n"
+             + "".join("v %g %g %g\n" % (x, y, z) for z in (0, 110) for y in (0, 100) for x in (0, 100))
+             + "vn 0 0 1\nf 1 2 4 3\nf 5 7 8 6\nf 1 5 6 2\ng wall\nf 3 4 8 7\nf -8//1 -4//1 -2//1 -6//1\n"
+             "f 2 6 8 4\nusemtl lamp32w\nf 1 2 4\n")
+OBJ_ODD = ["v", "v 1 2", "v 1 2 3", "v nan 0 0", "f", "f 1 2", "f 1 2 3", "f 0 1 2", "f -1 -2 -3", "f 1/2/3 4//5 6",
+           "usemtl", "usemtl grey", "usemtl nope", "usemtl a b", "o", "g x y", "s 1", "curv 0 1", "foo", "#",
+           "\\", "f 1 2 99", "v 1e999 0 0", "\x00", "\xe9"]
+
+
+@st.composite
+def mutated_lines(draw, valid, odd):
+    """``valid`` with a few whole lines deleted, doubled, swapped or replaced, and tokens inside lines changed."""
+    lines = valid.split("\n")
+    for _ in range(draw(st.integers(1, 4))):
+        i = draw(st.integers(0, len(lines) - 1)) if lines else 0
+        op = draw(st.sampled_from(["delete", "double", "swap", "insert", "token", "token", "cut"]))
+        if not lines:
+            lines.append(draw(st.sampled_from(odd)))
+        elif op == "delete":
+            del lines[i]
+        elif op == "double":
+            lines.insert(i, lines[i])
+        elif op == "swap":
+            j = draw(st.integers(0, len(lines) - 1))
+            lines[i], lines[j] = lines[j], lines[i]
+        elif op == "insert":
+            lines.insert(i, draw(st.sampled_from(odd) | token))
+        elif op == "token":
+            words = lines[i].split(" ")
+            k = draw(st.integers(0, len(words)))
+            words.insert(k, draw(st.sampled_from(odd) | token | number))
+            if draw(st.booleans()) and len(words) > 1:
+                del words[draw(st.integers(0, len(words) - 1))]
+            lines[i] = " ".join(words)
+        else:
+            lines[i] = lines[i][:draw(st.integers(0, len(lines[i])))]
+    return "\n".join(lines)
+
+
+def check_sec2_text(text):
+    """Parse and build (units resolved as a scene does), or an InputError of one line; nothing else."""
+    from lpy_light.scene import in_unit
+    try:
+        prims = parse_rad(text, "fuzz.rad")
+        build_chamber(in_unit(prims, "mm"), physics=Physics())
+    except InputError as exc:
+        assert "\n" not in str(exc) and (exc.path in (None, "fuzz.rad")), str(exc)
+        return "refused"
+    return "built"
+
+
+def check_obj_text(text):
+    from lpy_light.obj import parse_obj
+    materials = parse_rad("void plastic grey 0 0 5 .5 .5 .5 0 0\nvoid light lamp32w 0 0 3 1 1 1\n"
+                          "lamp32w point_light n 50 50 50\n", "m.rad")
+    try:
+        prims = parse_obj(text, "fuzz.obj")
+        chamber = build_chamber(list(materials) + list(prims), physics=Physics())
+    except InputError as exc:
+        assert "\n" not in str(exc) and exc.path in (None, "fuzz.obj", "m.rad"), str(exc)
+        return "refused"
+    assert np.isfinite(chamber.triangles).all()
+    return "built"
+
+
+def test_valid_sec2_and_obj_build():
+    assert check_sec2_text(VALID_SEC2) == "built" and check_obj_text(VALID_OBJ) == "built"
+    assert parse_rad(VALID_SEC2).sec2
+
+
+@pytest.mark.filterwarnings("error")
+@FUZZ
+@given(mutated_lines(VALID_SEC2, SEC2_ODD))
+def test_fuzz_sec2_dialect(text):
+    check_sec2_text(text)
+
+
+@pytest.mark.filterwarnings("error")
+@FUZZ
+@given(mutated_lines(VALID_OBJ, OBJ_ODD))
+def test_fuzz_obj(text):
+    check_obj_text(text)
+
+
+@pytest.mark.slow
+@pytest.mark.filterwarnings("error")
+@FUZZ_SLOW
+@given(mutated_lines(VALID_SEC2, SEC2_ODD) | mutated_lines(VALID_OBJ, OBJ_ODD).map(lambda t: "OBJ" + t))
+def test_fuzz_sec2_and_obj_long(text):
+    if text.startswith("OBJ"):
+        check_obj_text(text[3:])
+    else:
+        check_sec2_text(text)
+
+
+# ------------------------------------------------------------------------------------------
 # Interrupted runs: SIGTERM and Ctrl-C give partial, correctly normalised results
 def _start_and_signal(out, signals, threads=2):
     """Start ``lpy-light run angers`` with a 1e10 cap, wait for tracing to start, send ``signals``."""
@@ -205,11 +310,10 @@ def _check_partial(out, stderr, code):
     assert len(rows) == 240
     # normalised for the n photons traced: the chunks form a prefix of the run, so a full run of n photons
     # with the same seed gives the very same numbers
-    chamber = load_scene(cli.resolve_scene("angers"))
-    full = simulate.run(simulate.KernelScene(chamber), n, seed=5, threads=2)
-    photons, std = full.sensors()
-    np.testing.assert_array_equal([float(r["photons"]) for r in rows], photons[:, 0])
-    np.testing.assert_array_equal([float(r["photons_std"]) for r in rows], std[:, 0])
+    full = out.parent / (out.name + "-full")
+    assert cli.main(["run", "angers", "--photons", str(n), "--seed", "5", "--threads", "1", "--out", str(full),
+                     "--quiet"]) == 0
+    assert (full / "sensors.csv").read_text() == (out / "sensors.csv").read_text()
     assert all(np.isfinite(float(r["ppfd"])) for r in rows)
     return summary
 

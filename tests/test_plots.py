@@ -82,7 +82,7 @@ def test_angers_ppfd_units_and_derived(tmp_path):
     """angers and angers-12bands: ppfd beside photons; the sensors' mean ppfd is the measured band flux;
     PAR (the nine bands in 400-700) and R:FR (655-665 / 725-735) per sensor; the assumption stated."""
     from lpy_light import units
-    from lpy_light.cli import resolve_scene
+    from lpy_light.scene import resolve_scene
     from lpy_light.scene import load_scene
 
     for name in ("angers", "angers-12bands"):
