@@ -27,10 +27,21 @@ sampled by triangle area.
 Near a target, 1/d² makes the estimate heavy-tailed (infinite variance as the
 vertex approaches the target).  Discs avoid it: their point is drawn by solid
 angle as seen from v (:func:`disc_point_by_solid_angle`), so a next event is
-bounded however near v is.  For quads and meshes, a vertex closer to a target
-than :data:`NEAR` times the target's bounding radius makes no next event for
-it, and the segment's real crossing of that target is counted instead — a fixed
-split of the path space, so still unbiased.
+bounded however near v is.  Meshes too: from a vertex within :data:`NEAR`
+bounding radii of a mesh, a triangle is drawn in proportion to the solid angle it
+subtends (all of them computed, for meshes of up to :data:`EXACT_TRIANGLES`) and a
+direction uniformly within it (:func:`kernel.sampling.spherical_triangle`): the
+estimate Ω_total · p(ω) · V is at most 4π · max p per layer of the mesh.  (Larger
+meshes: the triangle drawn by area, sampled by solid angle if v is within
+:data:`MESH_NEAR` of its radii: Ω_g · A / A_g · p(ω), bounded.)  So no vertex is
+too near a mesh, and the light that neighbouring leaves, the stem beside a bud,
+the wall behind a leaf scatter to it is estimated at every such vertex instead
+of waiting for a photon to cross it: those crossings, counted, held nearly all
+of a rose leaf's and bud's variance (a bud's PAR spread 10-29 % over seeds at 1e6
+photons with a reported σ of 1-2 %; now 2-6 %, as reported).
+For quads, a vertex closer than :data:`NEAR` times the quad's bounding radius
+makes no next event for it, and the segment's real crossing is counted instead
+— a fixed split of the path space, so still unbiased.
 
 A disc right beside a wall gets much of its light through the few photons
 that land on the wall next to it; :func:`kernel.zones.near_zones` marks those
@@ -51,14 +62,16 @@ from .rays import seen_share
 from .records import (ABSORB, DIFFUSE_R, DIFFUSE_T, T_DISC, T_MESH1, T_MESH2, T_QUAD, V_ISOTROPIC,  # noqa: F401
                       V_LAMBERT, V_SURFACE)
 from .rng import uniform
-from .sampling import frame, search_cdf
+from .sampling import frame, search_cdf, spherical_triangle, triangle_solid_angle
 from .tallies import C_SHADOW
 
 # Embree intersects a triangle in float32 from the ray's origin: on a thin sliver (a leaf fan) the plane it
 # finds is off by ~1e-5 of the distance (measured: 0.75-1e-5 · d on a 96-triangle disc), so a shadow ray
 # to a point ON a mesh target must stop that much short or it is blocked by the target itself.
 END_REL = 2.0 ** -13
-NEAR = 3.0       # exclusion radius around a quad or mesh target, in its bounding radii
+NEAR = 3.0       # exclusion radius around a quad target (and image events' around a mesh), in bounding radii
+EXACT_TRIANGLES = 256   # near a mesh of at most this many triangles, one is drawn by solid angle (all computed)
+MESH_NEAR = 4.0  # near a larger mesh, the triangle drawn by area is sampled by solid angle within this · its radius
 FAR = 10.0      # discs farther than FAR radii: points drawn by area
 NEAR_PICKED = 1.0    # discs nearer than this · radius · √(targets) get their own next event (kernel.targets.near_discs)
 NEAR_FLOOR = 2.0     # ... and always those nearer than this · radius (kernel.targets.near_discs)
@@ -83,6 +96,44 @@ def mesh_point(t, u1, u2, u3, tgt, geo):
     g = tgt.tri[search_cdf(tgt.tri_cdf, tgt.first[t], tgt.first[t] + tgt.count[t] - 1, u3)]
     px, py, pz = _tri_point(geo.verts[g], u1, u2)
     return g, px, py, pz
+
+
+@njit(inline="always", cache=True)
+def _triangle_by_solid_angle(vx, vy, vz, t, u, tgt, geo):
+    """A triangle of mesh target t drawn in proportion to the solid angle it subtends from v, and the sum of
+    those solid angles (sr); (-1, 0) if t is seen edge-on.  Two passes over t's triangles."""
+    first, count = tgt.first[t], tgt.count[t]
+    total = 0.0
+    for i in range(first, first + count):
+        total += triangle_solid_angle(vx, vy, vz, geo.verts[tgt.tri[i], 0], geo.verts[tgt.tri[i], 1],
+                                      geo.verts[tgt.tri[i], 2])
+    if not total > 0.0:
+        return -1, 0.0
+    goal, run = u * total, 0.0
+    for i in range(first, first + count):
+        om = triangle_solid_angle(vx, vy, vz, geo.verts[tgt.tri[i], 0], geo.verts[tgt.tri[i], 1],
+                                  geo.verts[tgt.tri[i], 2])
+        run += om
+        if run > goal and om > 0.0:
+            return tgt.tri[i], total
+    for i in range(first + count - 1, first - 1, -1):      # rounding: the last triangle with an angle
+        g = tgt.tri[i]
+        if triangle_solid_angle(vx, vy, vz, geo.verts[g, 0], geo.verts[g, 1], geo.verts[g, 2]) > 0.0:
+            return g, total
+    return -1, 0.0
+
+
+@njit(inline="always", cache=True)
+def _near_triangle(vx, vy, vz, a):
+    """Is v within :data:`MESH_NEAR` bounding radii (about its centroid) of triangle ``a`` (3, 3)?  There a point
+    drawn by area would give a next event ∝ A / d², unbounded as v nears the triangle."""
+    cx, cy, cz = (a[0, 0] + a[1, 0] + a[2, 0]) / 3.0, (a[0, 1] + a[1, 1] + a[2, 1]) / 3.0, (a[0, 2] + a[1, 2] + a[2, 2]) / 3.0
+    r2 = 0.0
+    for i in range(3):
+        ex, ey, ez = a[i, 0] - cx, a[i, 1] - cy, a[i, 2] - cz
+        r2 = max(r2, ex * ex + ey * ey + ez * ez)
+    ex, ey, ez = vx - cx, vy - cy, vz - cz
+    return ex * ex + ey * ey + ez * ez < MESH_NEAR * MESH_NEAR * r2
 
 
 @njit(inline="always", cache=True)
@@ -321,8 +372,31 @@ def next_event(v, stat, cover_pid, control, geo, mat, sens, tgt, zones, photon, 
                 continue
             px, py, pz = sensor_point(kind, s, u1, u2, u3, sens)
         else:
-            g, px, py, pz = mesh_point(t, u1, u2, u3, tgt, geo)
+            near = d2c < tgt.img_near2[t]          # within NEAR bounding radii of the mesh
+            if near and tgt.count[t] <= EXACT_TRIANGLES:
+                # a triangle drawn in proportion to the solid angle it subtends: Ω_total · p(ω) · V, at most
+                # 4π · max p per layer of the mesh however near v is, and no lottery among its triangles
+                g, om_total = _triangle_by_solid_angle(vx, vy, vz, t, u3, tgt, geo)
+                if g < 0:
+                    continue
+            else:
+                # a triangle drawn by area: where v is near it (a large mesh), Ω_g · A / A_g · p(ω) · V, bounded
+                g, px, py, pz = mesh_point(t, u1, u2, u3, tgt, geo)
+                om_total = tgt.area[t] / _tri_area(geo.verts[g], 0, 1, 2) if near and _near_triangle(
+                    vx, vy, vz, geo.verts[g]) else 0.0
             mx, my, mz = geo.normal[g, 0], geo.normal[g, 1], geo.normal[g, 2]
+            if om_total > 0.0:                     # a direction uniform in the triangle's solid angle
+                sx, sy, sz, om = spherical_triangle(vx, vy, vz, geo.verts[g, 0], geo.verts[g, 1], geo.verts[g, 2],
+                                                    u1, u2)
+                den = sx * mx + sy * my + sz * mz
+                if om == 0.0 or den == 0.0:
+                    continue
+                tt = ((geo.verts[g, 0, 0] - vx) * mx + (geo.verts[g, 0, 1] - vy) * my
+                      + (geo.verts[g, 0, 2] - vz) * mz) / den
+                if not tt > 0.0:
+                    continue
+                px, py, pz = vx + tt * sx, vy + tt * sy, vz + tt * sz
+                omega = om_total if near and tgt.count[t] <= EXACT_TRIANGLES else om * om_total
         dx, dy, dz = px - vx, py - vy, pz - vz
         dist2 = dx * dx + dy * dy + dz * dz
         if not dist2 > 0.0:
@@ -332,7 +406,7 @@ def next_event(v, stat, cover_pid, control, geo, mat, sens, tgt, zones, photon, 
         cos_x = dx * mx + dy * my + dz * mz
         if kind != T_MESH2 and cos_x >= 0.0:
             continue          # sensors and one-sided receivers are met from the front only
-        geom = tscale * (omega if kind == T_DISC else tgt.area[t] * abs(cos_x) / dist2)
+        geom = tscale * (omega if omega > 0.0 else tgt.area[t] * abs(cos_x) / dist2)
         cos_v = dx * nx + dy * ny + dz * nz
         if mode == V_ISOTROPIC:
             for b in range(n_bands):

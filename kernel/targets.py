@@ -79,8 +79,8 @@ def build_targets(sens, sens_area, sens_bound, n_receivers_rows, tri_receiver, t
             pts = tri_verts[tris].reshape(-1, 3)
             lo_, hi_ = pts.min(axis=0), pts.max(axis=0)
             center.append((lo_ + hi_) / 2)
-            near2.append(float((NEAR * np.linalg.norm(hi_ - lo_) / 2) ** 2))
-            img_near2.append(near2[-1])
+            img_near2.append(float((NEAR * np.linalg.norm(hi_ - lo_) / 2) ** 2))
+            near2.append(0.0)     # no exclusion: a triangle near v is sampled by solid angle (kernel.nee)
             receiver_target[r] = len(kind) - 1
     center = f64(np.reshape(center, (-1, 3)))
     disc_radius = np.zeros(len(kind))

@@ -571,10 +571,11 @@ class LocalThreads:
         if isinstance(threads, bool) or not isinstance(threads, (int, np.integer)) or not 1 <= threads <= MAX_THREADS:
             raise InputError("threads must be in 1..%d, got %r" % (MAX_THREADS, threads))
         self.threads = int(threads)
-        self._pool = self._kscene = None
+        self._pool = self._kscene = self._records = None
 
     def open(self, kscene, n_chunks: int) -> int:
         self._kscene = kscene
+        self._records = kscene.records()                 # the kernel's records, once for the run
         self.threads = min(self.threads, n_chunks)      # more threads than chunks would only wait
         self._pool = ThreadPoolExecutor(max_workers=self.threads)
         return self.threads
@@ -583,12 +584,12 @@ class LocalThreads:
 
     def submit(self, seed: int, chunks):
         (first, count), = chunks
-        return self._pool.submit(lambda: [self._kscene.trace(seed, first, count)])
+        return self._pool.submit(lambda: [self._kscene.trace(seed, first, count, self._records)])
 
     def close(self):
         if self._pool is not None:
             self._pool.shutdown(wait=True)      # chunks already running finish (and are not summed)
-            self._pool = self._kscene = None
+            self._pool = self._kscene = self._records = None
 
     def describe(self) -> dict:
         return {}
