@@ -79,7 +79,7 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("scene", help="scene TOML file, or a built-in scene name (see 'lpy-light scenes')")
     r.add_argument("--photons", type=_count, default=None,
                    help="photons (all bands travel together). Alone: exactly this many. With --precision: a cap "
-                        "(default cap 1e10). Without either: nee stops at 1%% (cap %g), weighted/analog trace 1e6"
+                        "(default cap 1e10). Without either: nee stops at 1%%%% (cap %g), weighted/analog trace 1e6"
                         % DEFAULT_CAP)
     r.add_argument("--precision", type=float, default=None, metavar="REL",
                    help="stop when every sensor's relative σ is at most REL (default with nee and no --photons: "

@@ -107,3 +107,19 @@ def test_default_run_is_nee_to_one_percent_and_says_what_it_wrote(tmp_path):
     assert p2.returncode == 0, p2.stderr
     summary = json.load(open(fixed / "summary.json"))
     assert summary["photons"] == 40000 and "precision" not in summary and summary["estimator"] == "nee"
+
+
+def test_every_command_prints_its_help():
+    """``lpy-light CMD --help`` for every command: argparse expands ``%`` in help texts, so a help
+    mentioning '1 %' must write it '%%' after any Python formatting ('run --help' crashed with a
+    ValueError before)."""
+    import argparse
+    from lpy_light import cli
+    parser = cli._parser()
+    parser.format_help()
+    subs = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
+    assert subs and subs[0].choices
+    for name, sub in subs[0].choices.items():
+        text = sub.format_help()
+        assert name in text
+    assert "stops at 1%" in subs[0].choices["run"].format_help()
