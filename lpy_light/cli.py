@@ -209,9 +209,11 @@ def _trace_and_write(args, path, chamber, kscene, measured, ref, ref_band, execu
     signal.signal(signal.SIGINT, on_term)
     try:
         if not args.quiet:
-            print("lpy-light: %s: %d triangles, %d sensors, %d band(s); tracing %d photons"
-                  % (path, len(chamber.triangles), len(chamber.sensors), chamber.n_bands, args.photons),
-                  file=sys.stderr)
+            goal = ("tracing %d photons" % args.photons if args.precision is None else
+                    "tracing until every %s's σ ≤ %g %% (at most %.3g photons)"
+                    % ("sensor" if len(chamber.sensors) else "organ", 100 * args.precision, args.photons))
+            print("lpy-light: %s: %d triangles, %d sensors, %d band(s); %s"
+                  % (path, len(chamber.triangles), len(chamber.sensors), chamber.n_bands, goal), file=sys.stderr)
         result = simulate.run(kscene, args.photons, seed=args.seed, threads=args.threads,
                               progress=None if args.quiet else simulate.progress_printer(),
                               stop=stop.is_set, precision=args.precision, executor=executor)
