@@ -16,14 +16,14 @@ from .rng import uniform
 from .sampling import cosine_hemisphere, search_cdf, to_world, uniform_sphere
 
 
-@njit(inline="always", cache=True)
+@njit(forceinline=True, cache=True)
 def pick_element(emitters, i, count, state):
     """The element photon i of a chunk of ``count`` leaves from: stratified over the chunk by power."""
     cdf = emitters.cdf
     return search_cdf(cdf, 0, cdf.shape[0] - 1, (i + uniform(state)) / count)
 
 
-@njit(inline="always", cache=True)
+@njit(forceinline=True, cache=True)
 def emit(e, emitters, state, offset_rel):
     """Sample an origin and a direction on emitter element e.
 

@@ -22,7 +22,7 @@ from .sampling import search_cdf
 from .tallies import C_SHADOW
 
 
-@njit(inline="always", cache=True)
+@njit(forceinline=True, cache=True)
 def image_event(v, n_draw, stat0, geo, mat, sens, tgt, mir, photon, stats):
     """Next events through one perfect mirror: the expected light that the segment leaving vertex ``v``
     (:class:`~kernel.records.Vertex`) brings to a target (transparent sensor or mesh) after one specular
@@ -175,7 +175,7 @@ def image_event(v, n_draw, stat0, geo, mat, sens, tgt, mir, photon, stats):
     return n_out
 
 
-@njit(inline="always", cache=True)
+@njit(forceinline=True, cache=True)
 def image_counted(t, wx, wy, wz, pl, mir, tgt):
     """Is a crossing of target t counted on a segment that leaves mirror plane ``pl`` after a photon came
     from the next-event vertex w?  Only when w's image across the plane was too near t (as in

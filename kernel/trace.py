@@ -59,7 +59,7 @@ from .zones import zone_event
 _TFAR_MAX = 3.0e38
 
 
-@njit(inline="always", cache=True)
+@njit(forceinline=True, cache=True)
 def _inside(s, px, py, pz, sens):
     """Is the point p (on the sensor's plane) inside sensor s?  Exact for discs and quads."""
     center, corners, normal = sens.center, sens.corners, sens.normal
@@ -77,7 +77,7 @@ def _inside(s, px, py, pz, sens):
     return True
 
 
-@njit(inline="always", cache=True)
+@njit(forceinline=True, cache=True)
 def _counted(skip, t, x, y, z, tgt):
     """Is a crossing of target t counted on a segment that starts at vertex (x, y, z)?
 

@@ -83,7 +83,7 @@ def near_zones(tri_verts, tri_pid, n_chamber, near_start, near_list, near_r2, ce
     return Zones(0.0, zone_f, zone_i, zone_start)
 
 
-@njit(inline="always", cache=True)
+@njit(forceinline=True, cache=True)
 def zone_event(v, n_draw, geo, mat, sens, tgt, zones, photon, stats):
     """Two-step next events: the light that the segment leaving vertex ``v`` (:class:`~kernel.records.Vertex`)
     brings to a disc *through one diffuse vertex y in the zone of surface beside the disc* (:func:`near_zones`).
