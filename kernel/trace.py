@@ -110,10 +110,12 @@ def trace_chunk(scene, nee, scratch, seed, first, count, tallies, stats):
         n_slots = 3 * (n_tgt + tgt.picks) + 2 * (1 + int(max(nee.mirrors.picks, nee.zones.picks)))  # near discs +
         n_cv = nee.control.row.shape[0]                         # picks (3 deposits each), or image / zone events
     flush_start = scene.sensors.flush_start
+    n_flush = 0                  # the most sensors flush with one triangle (a loop: np.diff costs seconds of compile)
+    for k in range(flush_start.shape[0] - 1):
+        n_flush = max(n_flush, flush_start[k + 1] - flush_start[k])
     photon = Photon(scratch, np.zeros(1, dtype=np.uint64), np.empty(n_bands), np.empty(n_bands), np.empty(n_bands),
                     np.empty(n_slots, dtype=np.int64), np.empty((n_slots, n_bands)),
-                    np.empty(CAND_CAP + (int(np.max(np.diff(flush_start))) if flush_start.shape[0] > 1 else 0),
-                             dtype=np.int64))
+                    np.empty(CAND_CAP + n_flush, dtype=np.int64))
     accum = Accumulator(np.zeros((n_rows, n_bands)), np.zeros(n_rows, dtype=np.uint8), np.empty(n_rows, dtype=np.int64),
                         np.empty(n_bands))
     cvw = ControlWork(np.zeros((n_bands, n_cv)), np.zeros((n_bands, n_cv)), np.zeros((n_bands, n_bands, n_cv)),
@@ -127,10 +129,12 @@ def trace_photons(scene, nee, seed, first, count, tallies, stats, photon, accum,
     reference counting: array views and inlined helpers here would otherwise cost an atomic
     increment and decrement each (~20 % of a rose step's CPU time, more with two threads).
 
-    Every helper is inlined (``inline="always"``), next events from one place in the loop (a vertex's
-    events open the iteration that then scatters from it): a call to a separate compiled function passes
-    each of its records' arrays as ~9 machine arguments, 300-500 per call, which cost more than the next
-    events' own arithmetic (``docs/performance.md``).  What next events need is under ``if nee is not None``:
+    Every helper is inlined (``forceinline=True``: LLVM inlines each helper, compiled once by numba, at each
+    call; numba's own ``inline="always"`` re-processed the whole loop's IR per call site, 3x the compile
+    time for the same machine code), next events from one place in the loop (a vertex's events open the
+    iteration that then scatters from it): a call to a separate compiled function passes each of its
+    records' arrays as ~9 machine arguments, 300-500 per call, which cost more than the next events' own
+    arithmetic (``docs/performance.md``).  What next events need is under ``if nee is not None``:
     numba drops those branches when ``nee`` is None, so that ``weighted`` and ``analog`` compile a loop
     without them."""
     geo, mat, emitters, sens = scene
