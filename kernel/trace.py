@@ -45,6 +45,7 @@ from .control import add_control, control_deposits, control_products, fold_contr
 from .embree import ARGS, CAND, CAND_CAP, CAND_COUNT, GEOM_ID, HIT_U, HIT_V, INVALID_ID, PRIM_ID, RAYHIT, TFAR
 from .emission import emit, pick_element
 from .images import image_counted, image_event
+from .jit import helper
 from .nee import next_event
 from .ptr import call_ptr3, load_f32, load_i64, load_u32
 from .rays import magnitude, pick_coplanar, set_ray
@@ -59,7 +60,7 @@ from .zones import zone_event
 _TFAR_MAX = 3.0e38
 
 
-@njit(forceinline=True, cache=True)
+@helper
 def _inside(s, px, py, pz, sens):
     """Is the point p (on the sensor's plane) inside sensor s?  Exact for discs and quads."""
     center, corners, normal = sens.center, sens.corners, sens.normal
@@ -77,7 +78,7 @@ def _inside(s, px, py, pz, sens):
     return True
 
 
-@njit(forceinline=True, cache=True)
+@helper
 def _counted(skip, t, x, y, z, tgt):
     """Is a crossing of target t counted on a segment that starts at vertex (x, y, z)?
 
@@ -89,7 +90,7 @@ def _counted(skip, t, x, y, z, tgt):
     return ex * ex + ey * ey + ez * ez < tgt.near2[t]
 
 
-@njit(nogil=True, cache=True)
+@njit(nogil=True, no_cfunc_wrapper=True, cache=True)
 def trace_chunk(scene, nee, scratch, seed, first, count, tallies, stats):
     """Trace photons ``first .. first+count-1`` of the run of ``seed`` through ``scene``
     (:class:`~kernel.records.Scene`) with next events ``nee`` (:class:`~kernel.records.NextEvents`, or None:
@@ -123,7 +124,7 @@ def trace_chunk(scene, nee, scratch, seed, first, count, tallies, stats):
     trace_photons(scene, nee, seed, first, count, tallies, stats, photon, accum, cvw)
 
 
-@njit(nogil=True, cache=True, _nrt=False)
+@njit(nogil=True, no_cpython_wrapper=True, no_cfunc_wrapper=True, cache=True, _nrt=False)
 def trace_photons(scene, nee, seed, first, count, tallies, stats, photon, accum, cvw):
     """The photon loop of :func:`trace_chunk` (its arguments, then its work arrays), compiled without
     reference counting: array views and inlined helpers here would otherwise cost an atomic
