@@ -163,7 +163,7 @@ def trace_photons(scene, nee, seed, first, count, tallies, stats, photon, accum,
         stat_planes = n_mat + tgt.from_emitter.shape[0]
 
     n_pass = mat.cum.shape[2]      # paths per photon: 1 (all bands on one), n_bands (analog), or band groups
-    nh = 0
+    nh = np.int64(0)   # int64 from the start: a literal 0 would compile record() for Literal[int] too
     for path in range(count * n_pass):
         i = path // n_pass           # the photon
         pb = path - i * n_pass       # its band (n_pass > 1) or 0
@@ -188,7 +188,7 @@ def trace_photons(scene, nee, seed, first, count, tallies, stats, photon, accum,
         vertex = Vertex(ox, oy, oz, enx, eny, enz, emode, np.int64(0), oscale, np.int64(-1))
         stat = np.int64(n_mat + e)   # the vertex's row of nee_stats
         cover = np.int64(-1)         # the plane whose near discs zone events served (next_event's cover_pid)
-        near = 0                     # its triangle has near discs (control_deposits)
+        near = np.int64(0)           # its triangle has near discs (control_deposits)
         room = max_depth > 0         # a further bounce is allowed (events through a mirror or a zone need one)
         on_surface = False
         m, tri, rec, rec_analog = np.int64(0), np.int64(-1), np.int32(-1), False    # the hit (set below)
@@ -381,6 +381,6 @@ def trace_photons(scene, nee, seed, first, count, tallies, stats, photon, accum,
                 counters[C_BATCHES] += 1
                 in_batch = 0
         flush(nh, fate0, accum, tallies)
-        nh = 0
+        nh = np.int64(0)
     if nee is not None:
         add_control(cv, cvw, tallies)
