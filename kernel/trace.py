@@ -90,7 +90,6 @@ def _counted(skip, t, x, y, z, tgt):
     return ex * ex + ey * ey + ez * ez < tgt.near2[t]
 
 
-@njit(nogil=True, no_cfunc_wrapper=True, cache=True)
 def trace_chunk(scene, nee, scratch, seed, first, count, tallies, stats):
     """Trace photons ``first .. first+count-1`` of the run of ``seed`` through ``scene``
     (:class:`~kernel.records.Scene`) with next events ``nee`` (:class:`~kernel.records.NextEvents`, or None:
@@ -98,9 +97,18 @@ def trace_chunk(scene, nee, scratch, seed, first, count, tallies, stats):
     (:class:`~kernel.records.Tallies`, :class:`~kernel.records.Stats`).
 
     ``scratch``: the address of this thread's Embree block (:func:`kernel.embree.new_scratch`).  Photon i's
-    random stream is a function of ``(seed, i)`` only.  Allocates this chunk's work arrays and runs
-    :func:`trace_photons`.
+    random stream is a function of ``(seed, i)`` only.  Allocates this chunk's work arrays
+    (:func:`work_arrays`) and runs :func:`trace_photons`, the one compiled function Python calls.
     """
+    photon, accum, cvw = work_arrays(scene, nee, scratch, tallies)
+    trace_photons(scene, nee, seed, first, count, tallies, stats, photon, accum, cvw)
+
+
+def work_arrays(scene, nee, scratch, tallies):
+    """A chunk's work arrays (:class:`~kernel.records.Photon`, :class:`~kernel.records.Accumulator`,
+    :class:`~kernel.records.ControlWork`), sized for ``scene``, ``nee`` and ``tallies``.  Allocated here in
+    numpy, not in the compiled loop: it is compiled without reference counting (no allocation there), and
+    numba's compile of these allocations took seconds of a first run."""
     mat = scene.materials
     n_bands = mat.prob.shape[2]
     n_rows = tallies.tally.shape[0]
@@ -111,9 +119,7 @@ def trace_chunk(scene, nee, scratch, seed, first, count, tallies, stats):
         n_slots = 3 * (n_tgt + tgt.picks) + 2 * (1 + int(max(nee.mirrors.picks, nee.zones.picks)))  # near discs +
         n_cv = nee.control.row.shape[0]                         # picks (3 deposits each), or image / zone events
     flush_start = scene.sensors.flush_start
-    n_flush = 0                  # the most sensors flush with one triangle (a loop: np.diff costs seconds of compile)
-    for k in range(flush_start.shape[0] - 1):
-        n_flush = max(n_flush, flush_start[k + 1] - flush_start[k])
+    n_flush = int(np.max(np.diff(flush_start))) if flush_start.shape[0] > 1 else 0   # most sensors on a triangle
     photon = Photon(scratch, np.zeros(1, dtype=np.uint64), np.empty(n_bands), np.empty(n_bands), np.empty(n_bands),
                     np.empty(n_slots, dtype=np.int64), np.empty((n_slots, n_bands)),
                     np.empty(CAND_CAP + n_flush, dtype=np.int64))
@@ -121,10 +127,10 @@ def trace_chunk(scene, nee, scratch, seed, first, count, tallies, stats):
                         np.empty(n_bands))
     cvw = ControlWork(np.zeros((n_bands, n_cv)), np.zeros((n_bands, n_cv)), np.zeros((n_bands, n_bands, n_cv)),
                       np.empty(n_cv, dtype=np.float32), np.empty(n_cv, dtype=np.float32))
-    trace_photons(scene, nee, seed, first, count, tallies, stats, photon, accum, cvw)
+    return photon, accum, cvw
 
 
-@njit(nogil=True, no_cpython_wrapper=True, no_cfunc_wrapper=True, cache=True, _nrt=False)
+@njit(nogil=True, no_cfunc_wrapper=True, cache=True, _nrt=False)
 def trace_photons(scene, nee, seed, first, count, tallies, stats, photon, accum, cvw):
     """The photon loop of :func:`trace_chunk` (its arguments, then its work arrays), compiled without
     reference counting: array views and inlined helpers here would otherwise cost an atomic
