@@ -56,7 +56,8 @@ def main(argv=None):
     subprocess.run(["git", "clone", "-q", str(args.repo), str(clone)], check=True)
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=clone, capture_output=True,
                             text=True).stdout.strip()
-    print("first run of %s (commit %s) in %s, %d CPU(s)" % (args.repo, commit, clone, len(os.sched_getaffinity(0))))
+    print("first run of %s (commit %s) in %s, %d CPU(s), load average %.2f" % (args.repo, commit, clone,
+          len(os.sched_getaffinity(0)), os.getloadavg()[0]))
     wall, cpu, _ = _timed("bash scripts/setup.sh", clone, env)
     print("setup (bash scripts/setup.sh: venv + pip install): %6.1f s wall  %6.1f s CPU" % (wall, cpu), flush=True)
     print("%-12s %8s %8s %10s %10s  %s" % ("run", "wall s", "CPU s", "compile s", "tracing s", "photons"))
@@ -65,7 +66,8 @@ def main(argv=None):
         compile_s, trace_s, photons, sigma = _figures(err)
         print("%-12s %8.1f %8.1f %10.1f %10.1f  %d" % (run, wall, cpu, compile_s, trace_s, photons), flush=True)
     print("  " + sigma.replace("lpy-light: ", ""))
-    print("command: cd CLONE && %s" % COMMAND)
+    print("command: cd CLONE && %s  (load average now %.2f: on a shared machine, a run whose CPU s is not about"
+          " 2x its tracing s had one core)" % (COMMAND, os.getloadavg()[0]))
     if not args.keep:
         subprocess.run(["rm", "-rf", tmp], check=False)
     else:
