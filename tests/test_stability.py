@@ -703,7 +703,7 @@ class _FakeScene:
         return None
 
     def trace(self, seed, first, count, scene=None):
-        self.calls += 1
+        self.calls += count > 0            # not simulate.compile_kernel's warm-up, which traces no photon
         return self.values(first, count)
 
 
