@@ -703,7 +703,9 @@ class _FakeScene:
         return None
 
     def trace(self, seed, first, count, scene=None):
-        self.calls += count > 0            # not simulate.compile_kernel's warm-up, which traces no photon
+        if count == 0:                     # simulate.compile_kernel's warm-up: not a chunk
+            return None
+        self.calls += 1
         return self.values(first, count)
 
 
