@@ -12,8 +12,8 @@ Every photon then deposits on every sensor: the products between bands are taken
 :func:`lpy_light.simulate.effective_samples`).
 """
 import numpy as np
-from numba import njit
 
+from .jit import helper
 from .nee import NEAR_FLOOR, ZERO32, gamma32, view_factors
 from .records import DIFFUSE_R, DIFFUSE_T, T_DISC, V_LAMBERT, V_SURFACE, Control, f32, i64
 
@@ -49,7 +49,7 @@ def build_control(targets, sensors, on: bool, batch: int) -> Control:
                    thr.reshape(2, n), i64(np.reshape(runs, (-1, 2))), f32(plane))
 
 
-@njit(inline="always", cache=True)
+@helper
 def control_deposits(v, w, near, mat, cv, cvw):
     """Add γ (:func:`kernel.nee.point_view`) of every sensor target, seen from vertex ``v``
     (:class:`~kernel.records.Vertex`) with weights ``w`` (B,), to its batch's ``cvw.batch`` (B, c) -- except
@@ -95,7 +95,7 @@ def control_deposits(v, w, near, mat, cv, cvw):
                 acc[t] += a_r * g_r[t] + a_t * g_t[t]
 
 
-@njit(inline="always", cache=True)
+@helper
 def fold_control(n_rows, accum, cvw, sensor_target, n_sens):
     """End of a photon, with the control variate on: fold its other deposits on the sensor targets' rows
     into its batch's ``cvw.batch`` (B, c), so that the batch's products are taken whole by
@@ -115,7 +115,7 @@ def fold_control(n_rows, accum, cvw, sensor_target, n_sens):
             rows[a] = -1
 
 
-@njit(inline="always", cache=True)
+@helper
 def control_products(size, cvw):
     """Add one batch of ``size`` photons -- their summed sensor-target deposits ``cvw.batch`` (B, c) -- to
     the chunk's ``cvw.tally`` (B, c) and ``cvw.sq`` (B, B, c): S_b · S_b2 / size, upper triangle
@@ -146,7 +146,7 @@ def control_products(size, cvw):
             x[t] = 0.0
 
 
-@njit(inline="always", cache=True)
+@helper
 def add_control(cv, cvw, tallies):
     """End of a chunk: add the sensor targets' sums and batch products to their tally rows."""
     tally, tally_sq = tallies.tally, tallies.tally_sq

@@ -8,22 +8,21 @@ surface by its round-off scale.
 """
 import math
 
-from numba import njit
-
+from .jit import helper
 from .records import EMIT_CYLINDER, EMIT_LINE, EMIT_POINT, EMIT_TRIANGLE, V_ISOTROPIC, V_LAMBERT
 from .rays import magnitude
 from .rng import uniform
 from .sampling import cosine_hemisphere, search_cdf, to_world, uniform_sphere
 
 
-@njit(inline="always", cache=True)
+@helper
 def pick_element(emitters, i, count, state):
     """The element photon i of a chunk of ``count`` leaves from: stratified over the chunk by power."""
     cdf = emitters.cdf
     return search_cdf(cdf, 0, cdf.shape[0] - 1, (i + uniform(state)) / count)
 
 
-@njit(inline="always", cache=True)
+@helper
 def emit(e, emitters, state, offset_rel):
     """Sample an origin and a direction on emitter element e.
 

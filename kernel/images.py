@@ -12,8 +12,7 @@ Deposits in photons of weight, lengths in scene units, solid angles in steradian
 """
 import math
 
-from numba import njit
-
+from .jit import helper
 from .nee import END_REL, INV_4PI, disc_point_by_solid_angle, mesh_point, sensor_point
 from .rays import hit_on_plane, magnitude, seen_share, set_ray
 from .records import ABSORB, SPECULAR_R, T_DISC, T_MESH2
@@ -22,7 +21,7 @@ from .sampling import search_cdf
 from .tallies import C_SHADOW
 
 
-@njit(inline="always", cache=True)
+@helper
 def image_event(v, n_draw, stat0, geo, mat, sens, tgt, mir, photon, stats):
     """Next events through one perfect mirror: the expected light that the segment leaving vertex ``v``
     (:class:`~kernel.records.Vertex`) brings to a target (transparent sensor or mesh) after one specular
@@ -175,7 +174,7 @@ def image_event(v, n_draw, stat0, geo, mat, sens, tgt, mir, photon, stats):
     return n_out
 
 
-@njit(inline="always", cache=True)
+@helper
 def image_counted(t, wx, wy, wz, pl, mir, tgt):
     """Is a crossing of target t counted on a segment that leaves mirror plane ``pl`` after a photon came
     from the next-event vertex w?  Only when w's image across the plane was too near t (as in

@@ -56,8 +56,8 @@ band), lengths in scene units, solid angles in steradians.
 import math
 
 import numpy as np
-from numba import njit
 
+from .jit import helper
 from .rays import seen_share
 from .records import (ABSORB, DIFFUSE_R, DIFFUSE_T, T_DISC, T_MESH1, T_MESH2, T_QUAD, V_ISOTROPIC,  # noqa: F401
                       V_LAMBERT, V_SURFACE)
@@ -79,7 +79,7 @@ ZONE_HEIGHT = 4.0    # a disc whose centre is nearer to a plane than this · its
 INV_4PI = 1.0 / (4.0 * math.pi)
 
 
-@njit(inline="always", cache=True)
+@helper
 def _tri_point(a, u1, u2):
     su = math.sqrt(u1)
     b0, b1 = 1.0 - su, u2 * su
@@ -89,7 +89,7 @@ def _tri_point(a, u1, u2):
             b0 * a[0, 2] + b1 * a[1, 2] + b2 * a[2, 2])
 
 
-@njit(inline="always", cache=True)
+@helper
 def mesh_point(t, u1, u2, u3, tgt, geo):
     """A point uniform on mesh target t (by area) from three uniforms: ``(triangle, x, y, z)``; u3 picks the
     triangle from t's cumulative areas ``tgt.tri_cdf[tgt.first[t] : tgt.first[t] + tgt.count[t]]``."""
@@ -98,7 +98,7 @@ def mesh_point(t, u1, u2, u3, tgt, geo):
     return g, px, py, pz
 
 
-@njit(inline="always", cache=True)
+@helper
 def _triangle_by_solid_angle(vx, vy, vz, t, u, tgt, geo):
     """A triangle of mesh target t drawn in proportion to the solid angle it subtends from v, and the sum of
     those solid angles (sr); (-1, 0) if t is seen edge-on.  Two passes over t's triangles."""
@@ -123,7 +123,7 @@ def _triangle_by_solid_angle(vx, vy, vz, t, u, tgt, geo):
     return -1, 0.0
 
 
-@njit(inline="always", cache=True)
+@helper
 def _near_triangle(vx, vy, vz, a):
     """Is v within :data:`MESH_NEAR` bounding radii (about its centroid) of triangle ``a`` (3, 3)?  There a point
     drawn by area would give a next event ∝ A / d², unbounded as v nears the triangle."""
@@ -136,7 +136,7 @@ def _near_triangle(vx, vy, vz, a):
     return ex * ex + ey * ey + ez * ez < MESH_NEAR * MESH_NEAR * r2
 
 
-@njit(inline="always", cache=True)
+@helper
 def _tri_area(c, i, j, k):
     ax, ay, az = c[j, 0] - c[i, 0], c[j, 1] - c[i, 1], c[j, 2] - c[i, 2]
     bx, by, bz = c[k, 0] - c[i, 0], c[k, 1] - c[i, 1], c[k, 2] - c[i, 2]
@@ -144,7 +144,7 @@ def _tri_area(c, i, j, k):
     return 0.5 * math.sqrt(cx * cx + cy * cy + cz * cz)
 
 
-@njit(inline="always", cache=True)
+@helper
 def sensor_point(kind, s, u1, u2, u3, sens):
     """A point uniform on transparent sensor s (a disc, kind T_DISC, or a planar quad) from three uniforms."""
     center = sens.center
@@ -165,7 +165,7 @@ def sensor_point(kind, s, u1, u2, u3, sens):
             b0 * cq[0, 2] + b1 * cq[k1, 2] + b2 * cq[k2, 2])
 
 
-@njit(inline="always", cache=True)
+@helper
 def disc_point_by_solid_angle(vx, vy, vz, s, u1, u2, sens):
     """A point x on disc s drawn as seen from v, and the estimator's factor ``|cos θ_x| / |x − v|² / pdf_A(x)``
     (steradians), whose mean is the disc's solid angle seen from v.
@@ -217,7 +217,7 @@ def disc_point_by_solid_angle(vx, vy, vz, s, u1, u2, sens):
             dphi * span)
 
 
-@njit(inline="always", cache=True)
+@helper
 def view_factors(mode):
     """(c0, c1): the pdf of leaving a vertex of this mode towards direction ω is c0 + c1 · |cos| (for a
     surface, times the band's diffuse probability on that side)."""
@@ -231,7 +231,7 @@ _ONE32 = np.float32(1.0)
 _TINY32 = np.float32(1e-30)
 
 
-@njit(inline="always", cache=True)
+@helper
 def gamma32(v, n, c0, c1, c, m, area):
     """γ of a sensor of centre c, unit normal m and area A seen from v (unit normal n), in float32:
     A · cos θ_c / d² · (c0 + c1 |cos θ_v|), or ≤ 0 when v is behind the sensor's plane (all arguments
@@ -249,7 +249,7 @@ def gamma32(v, n, c0, c1, c, m, area):
     return area * hd * (inv_d * inv_d * inv_d) * (c0 + c1 * math.fabs(cos_v))
 
 
-@njit(inline="always", cache=True)
+@helper
 def point_view(t, v, tgt, sens):
     """Sensor target t's next event from vertex v as if t were a point at its centre: ``(γ, cos_v)``.
 
@@ -276,7 +276,7 @@ def point_view(t, v, tgt, sens):
     return float(g), (1.0 if up else -1.0)
 
 
-@njit(inline="always", cache=True)
+@helper
 def _zone_of(t, pid, zones):
     """Has disc target t a zone (:func:`kernel.zones.near_zones`) on plane ``pid``?"""
     for z in range(zones.start[t], zones.start[t + 1]):
@@ -285,7 +285,7 @@ def _zone_of(t, pid, zones):
     return False
 
 
-@njit(inline="always", cache=True)
+@helper
 def next_event(v, stat, cover_pid, control, geo, mat, sens, tgt, zones, photon, stats):
     """Expected deposits of the segment leaving vertex ``v`` (:class:`~kernel.records.Vertex`) on every target;
     returns how many were written.

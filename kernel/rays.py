@@ -6,14 +6,14 @@ surfaces cover a point (``coplanar = "random"``), what a photon meets there is o
 chosen uniformly at random (:func:`pick_coplanar`), not whichever Embree's float32 tie returns.  Lengths
 in scene units; directions unit vectors.
 """
-from numba import njit
 
 from .embree import ARGS, CAND_COUNT, DIR, GEOM_ID, HIT_U, HIT_V, INVALID_ID, MASK, ORG, PRIM_ID, RAYHIT, TFAR, TNEAR
+from .jit import helper
 from .ptr import call_ptr3, load_f32, load_u32, store_f32, store_i64, store_u32
 from .rng import uniform
 
 
-@njit(inline="always", cache=True)
+@helper
 def set_ray(scratch, ox, oy, oz, dx, dy, dz, tfar):
     """Write a ray (origin, unit direction, [0, tfar]) into this thread's RTCRayHit: all masks, ray id and
     flags 0, no hit yet, no sensor candidates yet."""
@@ -34,7 +34,7 @@ def set_ray(scratch, ox, oy, oz, dx, dy, dz, tfar):
     store_i64(scratch + CAND_COUNT, 0)
 
 
-@njit(inline="always", cache=True)
+@helper
 def visible(geo, scratch, ox, oy, oz, dx, dy, dz, tfar):
     """Is the segment from o along unit d, up to tfar, free of surfaces?  One ``rtcOccluded1`` call."""
     set_ray(scratch, ox, oy, oz, dx, dy, dz, tfar)
@@ -42,7 +42,7 @@ def visible(geo, scratch, ox, oy, oz, dx, dy, dz, tfar):
     return load_f32(scratch + RAYHIT + TFAR) >= 0.0
 
 
-@njit(inline="always", cache=True)
+@helper
 def magnitude(v):
     """Largest |coordinate| of the three vertices v (3, 3): the scale of a triangle's float32 round-off."""
     m = 0.0
@@ -52,7 +52,7 @@ def magnitude(v):
     return m
 
 
-@njit(inline="always", cache=True)
+@helper
 def competes(j, px, py, pz, dx, dy, dz, geo):
     """Does triangle j contain p (on its plane) and face the ray (or is it two-sided)?"""
     box, verts = geo.cop_box, geo.verts
@@ -72,7 +72,7 @@ def competes(j, px, py, pz, dx, dy, dz, geo):
     return True
 
 
-@njit(inline="always", cache=True)
+@helper
 def partner_free(tri, px, py, pz, geo):
     """Is p inside the box of triangle ``tri`` that none of its coplanar partners reaches?"""
     free = geo.cop_free
@@ -80,7 +80,7 @@ def partner_free(tri, px, py, pz, geo):
             and free[tri, 0, 2] < pz < free[tri, 1, 2])
 
 
-@njit(inline="always", cache=True)
+@helper
 def pick_coplanar(tri, px, py, pz, dx, dy, dz, geo, state):
     """One of ``tri`` and its coplanar partners that contain p and face the ray, uniformly at random
     (reservoir sampling: one random number per competing partner, none where there is none)."""
@@ -97,7 +97,7 @@ def pick_coplanar(tri, px, py, pz, dx, dy, dz, geo, state):
     return chosen
 
 
-@njit(inline="always", cache=True)
+@helper
 def hit_on_plane(geo, scratch, plane_of, plane, dx, dy, dz, state):
     """Trace the ray already set in the scratch block (direction d); if what a photon would meet first (a
     coplanar tie picked at random, as at a photon's hit) lies on plane ``plane`` of ``plane_of`` (T,), return
@@ -127,7 +127,7 @@ def hit_on_plane(geo, scratch, plane_of, plane, dx, dy, dz, state):
     return tri, hx, hy, hz, tnx, tny, tnz, geo.material[tri, 0]
 
 
-@njit(inline="always", cache=True)
+@helper
 def reaches(geo, scratch, origin, direction, near, far, receiver, point):
     """The share of the light arriving at x = ``point``, a point of a mesh target reached from ``origin`` along
     the unit ``direction``, that receiver ``receiver`` gets: 0 unless the first surface met, before ``far``, no
@@ -160,7 +160,7 @@ def reaches(geo, scratch, origin, direction, near, far, receiver, point):
     return mine / n_in
 
 
-@njit(inline="always", cache=True)
+@helper
 def seen_share(g, geo, scratch, origin, direction, near, far, receiver, point):
     """The share of the light at x = ``point`` that a target gets, seen from ``origin`` along the unit
     ``direction``: for a mesh target (``g`` >= 0, its triangle) :func:`reaches`; for a sensor 1 if nothing is

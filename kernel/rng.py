@@ -4,7 +4,9 @@ A photon's stream depends only on ``(seed, photon index)``, so results depend on
 the seed alone and never on how photons are spread over threads.
 """
 import numpy as np
-from numba import njit, uint64
+from numba import uint64
+
+from .jit import helper
 
 _GOLDEN = uint64(0x9E3779B97F4A7C15)
 _M1 = uint64(0xBF58476D1CE4E5B9)
@@ -12,27 +14,27 @@ _M2 = uint64(0x94D049BB133111EB)
 _INV_2_53 = 1.0 / 9007199254740992.0
 
 
-@njit(inline="always", cache=True)
+@helper
 def _mix(z):
     z = (z ^ (z >> uint64(30))) * _M1
     z = (z ^ (z >> uint64(27))) * _M2
     return z ^ (z >> uint64(31))
 
 
-@njit(inline="always", cache=True)
+@helper
 def seed_stream(state, seed, index):
     """Start the stream of photon ``index`` in ``state`` (a uint64 array of length 1)."""
     state[0] = _mix(_mix(uint64(seed) + _GOLDEN) ^ (uint64(index) * _GOLDEN + _M2))
 
 
-@njit(inline="always", cache=True)
+@helper
 def uniform(state):
     """Next double in [0, 1) with 53 random bits."""
     state[0] += _GOLDEN
     return float(_mix(state[0]) >> uint64(11)) * _INV_2_53
 
 
-@njit(inline="always", cache=True)
+@helper
 def n_draws(mean, state):
     """A random whole number whose mean is ``mean`` (≥ 0): int(mean), plus one with probability frac(mean);
     no random number is used when ``mean`` is whole."""

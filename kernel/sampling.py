@@ -6,12 +6,12 @@ tests in ``tests/test_sampling.py`` check each pair against the other.
 """
 import math
 
-from numba import njit
+from .jit import helper
 
 TWO_PI = 2.0 * math.pi
 
 
-@njit(inline="always", cache=True)
+@helper
 def search_cdf(cdf, lo, hi, u):
     """The first index i in [lo, hi] with cdf[i] > u (hi if none): the entry a uniform u draws from the
     cumulative probabilities ``cdf[lo : hi + 1]`` (ending at 1)."""
@@ -24,7 +24,7 @@ def search_cdf(cdf, lo, hi, u):
     return lo
 
 
-@njit(inline="always", cache=True)
+@helper
 def frame(nx, ny, nz):
     """Two unit tangents ``(t, b)`` completing ``n`` to a right-handed frame (Duff et al. 2017)."""
     sign = 1.0 if nz >= 0.0 else -1.0
@@ -33,7 +33,7 @@ def frame(nx, ny, nz):
     return (1.0 + sign * nx * nx * a, sign * c, -sign * nx), (c, sign + ny * ny * a, -ny)
 
 
-@njit(inline="always", cache=True)
+@helper
 def to_world(lx, ly, lz, nx, ny, nz):
     t, b = frame(nx, ny, nz)
     return (lx * t[0] + ly * b[0] + lz * nx,
@@ -41,7 +41,7 @@ def to_world(lx, ly, lz, nx, ny, nz):
             lx * t[2] + ly * b[2] + lz * nz)
 
 
-@njit(inline="always", cache=True)
+@helper
 def uniform_sphere(u1, u2):
     """Isotropic direction; pdf = 1 / (4π)."""
     z = 1.0 - 2.0 * u1
@@ -50,12 +50,12 @@ def uniform_sphere(u1, u2):
     return r * math.cos(phi), r * math.sin(phi), z
 
 
-@njit(inline="always", cache=True)
+@helper
 def uniform_sphere_pdf(dx, dy, dz):
     return 1.0 / (4.0 * math.pi)
 
 
-@njit(inline="always", cache=True)
+@helper
 def cosine_hemisphere(nx, ny, nz, u1, u2):
     """Lambertian (cosine-weighted) direction about unit ``n``; pdf = cos θ / π."""
     r = math.sqrt(u1)
@@ -64,20 +64,20 @@ def cosine_hemisphere(nx, ny, nz, u1, u2):
     return to_world(r * math.cos(phi), r * math.sin(phi), lz, nx, ny, nz)
 
 
-@njit(inline="always", cache=True)
+@helper
 def cosine_hemisphere_pdf(nx, ny, nz, dx, dy, dz):
     c = nx * dx + ny * dy + nz * dz
     return c / math.pi if c > 0.0 else 0.0
 
 
-@njit(inline="always", cache=True)
+@helper
 def mirror(dx, dy, dz, nx, ny, nz):
     """Perfect specular reflection of ``d`` about the plane of unit normal ``n``."""
     c = 2.0 * (dx * nx + dy * ny + dz * nz)
     return dx - c * nx, dy - c * ny, dz - c * nz
 
 
-@njit(inline="always", cache=True)
+@helper
 def phong_lobe(ax, ay, az, exponent, u1, u2):
     """Direction about unit axis ``a`` with pdf = (e + 1) / (2π) · cos^e α (α from the axis)."""
     cos_a = u1 ** (1.0 / (exponent + 1.0))
@@ -86,7 +86,7 @@ def phong_lobe(ax, ay, az, exponent, u1, u2):
     return to_world(sin_a * math.cos(phi), sin_a * math.sin(phi), cos_a, ax, ay, az)
 
 
-@njit(inline="always", cache=True)
+@helper
 def phong_lobe_pdf(ax, ay, az, exponent, dx, dy, dz):
     c = ax * dx + ay * dy + az * dz
     return (exponent + 1.0) / TWO_PI * c ** exponent if c > 0.0 else 0.0
@@ -105,18 +105,18 @@ def phong_exponent(roughness: float) -> float:
     return max(0.0, 2.0 / roughness ** 2 - 2.0)
 
 
-@njit(inline="always", cache=True)
+@helper
 def _unit(x, y, z):
     n = math.sqrt(x * x + y * y + z * z)
     return x / n, y / n, z / n
 
 
-@njit(inline="always", cache=True)
+@helper
 def _cross(ax, ay, az, bx, by, bz):
     return ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx
 
 
-@njit(inline="always", cache=True)
+@helper
 def triangle_solid_angle(vx, vy, vz, t0, t1, t2):
     """Solid angle (sr) of the triangle of corners ``t0, t1, t2`` ((3,) each) seen from ``v``
     (Van Oosterom & Strackee 1983: stable for small and large angles alike)."""
@@ -133,7 +133,7 @@ def triangle_solid_angle(vx, vy, vz, t0, t1, t2):
     return 2.0 * math.atan2(num, den)
 
 
-@njit(inline="always", cache=True)
+@helper
 def spherical_triangle(vx, vy, vz, t0, t1, t2, u1, u2):
     """A direction from ``v`` uniform in the solid angle of the triangle ``t0, t1, t2`` (Arvo 1995);
     pdf = 1 / Ω.  Returns ``(dx, dy, dz, Ω)``; Ω = 0 (and any direction) for a triangle seen edge-on.

@@ -11,21 +11,21 @@ hits, R receivers' absorbed weight, then the photon's fates — absorbed per mat
 cut at max_depth, lost to numerical failure — and a last row holding each photon's total deposit over the
 fates, whose mean is 1 per band: energy closure with its own standard error.
 """
-from numba import njit
+from .jit import helper
 
 # counters
 C_RAYS, C_CAND_OVERFLOW, C_SCRATCH_FLUSH, C_LOST, C_SHADOW, C_BATCHES = 0, 1, 2, 3, 4, 5
 N_COUNTERS = 6
 
 
-@njit(inline="always", cache=True)
+@helper
 def fate_rows(tallies, n_materials):
     """First fate row (absorbed in material 0), and the rows escaped, cut, lost."""
     fate0 = tallies.tally.shape[0] - n_materials - 4
     return fate0, fate0 + n_materials, fate0 + n_materials + 1, fate0 + n_materials + 2
 
 
-@njit(inline="always", cache=True)
+@helper
 def record(k, w, n_rows, accum):
     """Add weights ``w`` (B,) to this photon's row k (``accum``: :class:`~kernel.records.Accumulator`); returns
     the number of rows the photon has touched."""
@@ -39,7 +39,7 @@ def record(k, w, n_rows, accum):
     return n_rows
 
 
-@njit(inline="always", cache=True)
+@helper
 def record_all(n_out, n_rows, photon, accum):
     """:func:`record` the ``n_out`` deposits a next event wrote to ``photon.out_k`` / ``photon.out_w``."""
     for a in range(n_out):
@@ -47,7 +47,7 @@ def record_all(n_out, n_rows, photon, accum):
     return n_rows
 
 
-@njit(inline="always", cache=True)
+@helper
 def flush(n_rows, fate0, accum, tallies):
     """Add one photon's contributions (its rows of ``accum.acc``, in the order first touched): sums and
     products between bands; clear them for the next photon.

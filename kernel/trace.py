@@ -45,6 +45,7 @@ from .control import add_control, control_deposits, control_products, fold_contr
 from .embree import ARGS, CAND, CAND_CAP, CAND_COUNT, GEOM_ID, HIT_U, HIT_V, INVALID_ID, PRIM_ID, RAYHIT, TFAR
 from .emission import emit, pick_element
 from .images import image_counted, image_event
+from .jit import helper
 from .nee import next_event
 from .ptr import call_ptr3, load_f32, load_i64, load_u32
 from .rays import magnitude, pick_coplanar, set_ray
@@ -59,7 +60,7 @@ from .zones import zone_event
 _TFAR_MAX = 3.0e38
 
 
-@njit(inline="always", cache=True)
+@helper
 def _inside(s, px, py, pz, sens):
     """Is the point p (on the sensor's plane) inside sensor s?  Exact for discs and quads."""
     center, corners, normal = sens.center, sens.corners, sens.normal
@@ -77,7 +78,7 @@ def _inside(s, px, py, pz, sens):
     return True
 
 
-@njit(inline="always", cache=True)
+@helper
 def _counted(skip, t, x, y, z, tgt):
     """Is a crossing of target t counted on a segment that starts at vertex (x, y, z)?
 
@@ -89,7 +90,6 @@ def _counted(skip, t, x, y, z, tgt):
     return ex * ex + ey * ey + ez * ez < tgt.near2[t]
 
 
-@njit(nogil=True, cache=True)
 def trace_chunk(scene, nee, scratch, seed, first, count, tallies, stats):
     """Trace photons ``first .. first+count-1`` of the run of ``seed`` through ``scene``
     (:class:`~kernel.records.Scene`) with next events ``nee`` (:class:`~kernel.records.NextEvents`, or None:
@@ -97,9 +97,18 @@ def trace_chunk(scene, nee, scratch, seed, first, count, tallies, stats):
     (:class:`~kernel.records.Tallies`, :class:`~kernel.records.Stats`).
 
     ``scratch``: the address of this thread's Embree block (:func:`kernel.embree.new_scratch`).  Photon i's
-    random stream is a function of ``(seed, i)`` only.  Allocates this chunk's work arrays and runs
-    :func:`trace_photons`.
+    random stream is a function of ``(seed, i)`` only.  Allocates this chunk's work arrays
+    (:func:`work_arrays`) and runs :func:`trace_photons`, the one compiled function Python calls.
     """
+    photon, accum, cvw = work_arrays(scene, nee, scratch, tallies)
+    trace_photons(scene, nee, seed, first, count, tallies, stats, photon, accum, cvw)
+
+
+def work_arrays(scene, nee, scratch, tallies):
+    """A chunk's work arrays (:class:`~kernel.records.Photon`, :class:`~kernel.records.Accumulator`,
+    :class:`~kernel.records.ControlWork`), sized for ``scene``, ``nee`` and ``tallies``.  Allocated here in
+    numpy, not in the compiled loop: it is compiled without reference counting (no allocation there), and
+    numba's compile of these allocations took seconds of a first run."""
     mat = scene.materials
     n_bands = mat.prob.shape[2]
     n_rows = tallies.tally.shape[0]
@@ -110,27 +119,29 @@ def trace_chunk(scene, nee, scratch, seed, first, count, tallies, stats):
         n_slots = 3 * (n_tgt + tgt.picks) + 2 * (1 + int(max(nee.mirrors.picks, nee.zones.picks)))  # near discs +
         n_cv = nee.control.row.shape[0]                         # picks (3 deposits each), or image / zone events
     flush_start = scene.sensors.flush_start
+    n_flush = int(np.max(np.diff(flush_start))) if flush_start.shape[0] > 1 else 0   # most sensors on a triangle
     photon = Photon(scratch, np.zeros(1, dtype=np.uint64), np.empty(n_bands), np.empty(n_bands), np.empty(n_bands),
                     np.empty(n_slots, dtype=np.int64), np.empty((n_slots, n_bands)),
-                    np.empty(CAND_CAP + (int(np.max(np.diff(flush_start))) if flush_start.shape[0] > 1 else 0),
-                             dtype=np.int64))
+                    np.empty(CAND_CAP + n_flush, dtype=np.int64))
     accum = Accumulator(np.zeros((n_rows, n_bands)), np.zeros(n_rows, dtype=np.uint8), np.empty(n_rows, dtype=np.int64),
                         np.empty(n_bands))
     cvw = ControlWork(np.zeros((n_bands, n_cv)), np.zeros((n_bands, n_cv)), np.zeros((n_bands, n_bands, n_cv)),
                       np.empty(n_cv, dtype=np.float32), np.empty(n_cv, dtype=np.float32))
-    trace_photons(scene, nee, seed, first, count, tallies, stats, photon, accum, cvw)
+    return photon, accum, cvw
 
 
-@njit(nogil=True, cache=True, _nrt=False)
+@njit(nogil=True, no_cfunc_wrapper=True, cache=True, _nrt=False)
 def trace_photons(scene, nee, seed, first, count, tallies, stats, photon, accum, cvw):
     """The photon loop of :func:`trace_chunk` (its arguments, then its work arrays), compiled without
     reference counting: array views and inlined helpers here would otherwise cost an atomic
     increment and decrement each (~20 % of a rose step's CPU time, more with two threads).
 
-    Every helper is inlined (``inline="always"``), next events from one place in the loop (a vertex's
-    events open the iteration that then scatters from it): a call to a separate compiled function passes
-    each of its records' arrays as ~9 machine arguments, 300-500 per call, which cost more than the next
-    events' own arithmetic (``docs/performance.md``).  What next events need is under ``if nee is not None``:
+    Every helper is inlined (``forceinline=True``: LLVM inlines each helper, compiled once by numba, at each
+    call; numba's own ``inline="always"`` re-processed the whole loop's IR per call site, 3x the compile
+    time for the same machine code), next events from one place in the loop (a vertex's events open the
+    iteration that then scatters from it): a call to a separate compiled function passes each of its
+    records' arrays as ~9 machine arguments, 300-500 per call, which cost more than the next events' own
+    arithmetic (``docs/performance.md``).  What next events need is under ``if nee is not None``:
     numba drops those branches when ``nee`` is None, so that ``weighted`` and ``analog`` compile a loop
     without them."""
     geo, mat, emitters, sens = scene
@@ -158,7 +169,7 @@ def trace_photons(scene, nee, seed, first, count, tallies, stats, photon, accum,
         stat_planes = n_mat + tgt.from_emitter.shape[0]
 
     n_pass = mat.cum.shape[2]      # paths per photon: 1 (all bands on one), n_bands (analog), or band groups
-    nh = 0
+    nh = np.int64(0)   # int64 from the start: a literal 0 would compile record() for Literal[int] too
     for path in range(count * n_pass):
         i = path // n_pass           # the photon
         pb = path - i * n_pass       # its band (n_pass > 1) or 0
@@ -183,7 +194,7 @@ def trace_photons(scene, nee, seed, first, count, tallies, stats, photon, accum,
         vertex = Vertex(ox, oy, oz, enx, eny, enz, emode, np.int64(0), oscale, np.int64(-1))
         stat = np.int64(n_mat + e)   # the vertex's row of nee_stats
         cover = np.int64(-1)         # the plane whose near discs zone events served (next_event's cover_pid)
-        near = 0                     # its triangle has near discs (control_deposits)
+        near = np.int64(0)           # its triangle has near discs (control_deposits)
         room = max_depth > 0         # a further bounce is allowed (events through a mirror or a zone need one)
         on_surface = False
         m, tri, rec, rec_analog = np.int64(0), np.int64(-1), np.int32(-1), False    # the hit (set below)
@@ -376,6 +387,6 @@ def trace_photons(scene, nee, seed, first, count, tallies, stats, photon, accum,
                 counters[C_BATCHES] += 1
                 in_batch = 0
         flush(nh, fate0, accum, tallies)
-        nh = 0
+        nh = np.int64(0)
     if nee is not None:
         add_control(cv, cvw, tallies)

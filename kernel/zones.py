@@ -13,8 +13,8 @@ Deposits in photons of weight, lengths in scene units, solid angles in steradian
 import math
 
 import numpy as np
-from numba import njit
 
+from .jit import helper
 from .nee import ZONE_HEIGHT, disc_point_by_solid_angle, view_factors
 from .rays import hit_on_plane, magnitude, set_ray, visible
 from .records import V_ISOTROPIC, V_LAMBERT, V_SURFACE, Zones
@@ -83,7 +83,7 @@ def near_zones(tri_verts, tri_pid, n_chamber, near_start, near_list, near_r2, ce
     return Zones(0.0, zone_f, zone_i, zone_start)
 
 
-@njit(inline="always", cache=True)
+@helper
 def zone_event(v, n_draw, geo, mat, sens, tgt, zones, photon, stats):
     """Two-step next events: the light that the segment leaving vertex ``v`` (:class:`~kernel.records.Vertex`)
     brings to a disc *through one diffuse vertex y in the zone of surface beside the disc* (:func:`near_zones`).

@@ -186,9 +186,28 @@ def cmd_run(args) -> int:
             from . import cluster
             client = cluster_scope.enter_context(cluster.dask_client(args.dask, threads=args.threads))
             executor = cluster.DaskChunks(client)
+        if executor is None:    # numba compiles the kernel on a first run: said, and timed apart from tracing
+            _compile_kernel(kscene, args.quiet)
         if args.estimator == "nee":
             kscene.prune_next_events(threads=args.threads if executor is None else None)
         return _trace_and_write(args, path, chamber, kscene, measured, ref, ref_band, executor)
+
+
+def _compile_kernel(kscene, quiet: bool) -> None:
+    """Compile the kernel for this run's estimator (first run only; loaded from numba's cache after),
+    saying so while it compiles."""
+    from . import simulate
+
+    said = []
+
+    def note(text):
+        said.append(text)
+        if not quiet:
+            print("lpy-light: " + text, file=sys.stderr, flush=True)
+
+    seconds = simulate.compile_kernel(kscene, note=note)
+    if said and not quiet:
+        print("lpy-light: kernel compiled in %.1f s" % seconds, file=sys.stderr, flush=True)
 
 
 def _trace_and_write(args, path, chamber, kscene, measured, ref, ref_band, executor=None) -> int:

@@ -10,6 +10,7 @@ from __future__ import annotations
 import math
 import os
 import sys
+import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
@@ -505,6 +506,36 @@ class KernelScene:
         return tallies.tally, tallies.tally_sq, stats.counters, stats.nee_stats
 
 
+#: a kernel not ready after this many seconds is being compiled (loading numba's cache takes well under it)
+COMPILE_NOTE_AFTER = 1.0
+
+
+def compile_kernel(kscene: KernelScene, records=None, note=None) -> float:
+    """Make the kernel ready for ``records`` (default: ``kscene.records()``) by tracing no photon: numba
+    compiles :func:`~lpy_light.kernel.trace.trace_photons` for their types on the first run (~12 s for
+    ``nee``, ~3 s for ``weighted`` and ``analog``; then cached on disk, :func:`lpy_light.kernel.numba_cache_dir`)
+    or loads it from its cache (< 1 s), or finds it compiled in this process.
+
+    ``note(text)`` is called once, from another thread, if that takes longer than
+    :data:`COMPILE_NOTE_AFTER` seconds: a compile, which a progress line should name rather than count as
+    tracing.  Returns the seconds it took."""
+    start = time.perf_counter()
+    done = threading.Event()
+
+    def tell():
+        if not done.wait(COMPILE_NOTE_AFTER) and note is not None:
+            note("compiling the kernel, first run only (cached for the next runs) ...")
+
+    watcher = threading.Thread(target=tell, daemon=True)
+    watcher.start()
+    try:
+        kscene.trace(0, 0, 0, records)
+    finally:
+        done.set()
+        watcher.join()
+    return time.perf_counter() - start
+
+
 def default_threads() -> int:
     return max(1, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1))
 
@@ -554,7 +585,9 @@ class LocalThreads:
     Its methods:
 
     * ``open(kscene, n_chunks) -> slots``: get ready to trace ``kscene``; ``slots`` is how many
-      tasks it runs at once (:func:`run` keeps ``2 · slots`` submitted);
+      tasks it runs at once (:func:`run` keeps ``2 · slots`` submitted).  Here it also makes the kernel
+      ready (:func:`compile_kernel`, telling ``progress.note`` if it compiles), so that :func:`run`'s
+      rate and seconds are of tracing only;
     * ``chunks_per_task`` (read after ``open``): consecutive chunks in one task (1 here);
     * ``submit(seed, chunks) -> future``: ``[kscene.trace(seed, first, count) for first, count in
       chunks]`` somewhere, a future with ``result()`` and ``cancel()`` (:func:`run` sums each chunk's
@@ -573,9 +606,10 @@ class LocalThreads:
         self.threads = int(threads)
         self._pool = self._kscene = self._records = None
 
-    def open(self, kscene, n_chunks: int) -> int:
+    def open(self, kscene, n_chunks: int, note=None) -> int:
         self._kscene = kscene
         self._records = kscene.records()                 # the kernel's records, once for the run
+        compile_kernel(kscene, self._records, note)      # here, so that a first run's compile is not tracing
         self.threads = min(self.threads, n_chunks)      # more threads than chunks would only wait
         self._pool = ThreadPoolExecutor(max_workers=self.threads)
         return self.threads
@@ -669,7 +703,11 @@ def run(kscene: KernelScene, photons: int, seed: int = 1, threads: int | None = 
     pending = []
     try:
         try:
-            slots = executor.open(kscene, n_chunks)       # after nee_batch: an executor may copy the scene
+            # after nee_batch: an executor may copy the scene; LocalThreads compiles the kernel (first run only)
+            note = getattr(progress, "note", None)
+            slots = (executor.open(kscene, n_chunks, note) if isinstance(executor, LocalThreads)
+                     else executor.open(kscene, n_chunks))
+            start = time.perf_counter()                    # the rate is of tracing, not of numba's compile
             per_task = max(1, int(getattr(executor, "chunks_per_task", 1)))
             window = 2 * slots                                # tasks submitted ahead
             next_chunk = 0
@@ -726,6 +764,9 @@ def progress_printer(stream=sys.stderr, every: float = 2.0):
     """A ``progress`` callback printing photons done, rate and time left every ``every`` seconds."""
     last = [-every]
 
+    def note(text):     # said once while nothing is traced yet, e.g. numba compiling the kernel
+        print("  " + text, file=stream, flush=True)
+
     def show(done, total, seconds):
         if seconds - last[0] < every and done < total:
             return
@@ -735,4 +776,5 @@ def progress_printer(stream=sys.stderr, every: float = 2.0):
         print("  %5.1f%%  %d/%d photons  %.3g photons/s  %.0f s left"
               % (100.0 * done / total, done, total, rate, left), file=stream, flush=True)
 
+    show.note = note
     return show

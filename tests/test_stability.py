@@ -703,6 +703,8 @@ class _FakeScene:
         return None
 
     def trace(self, seed, first, count, scene=None):
+        if count == 0:                     # simulate.compile_kernel's warm-up: not a chunk
+            return None
         self.calls += 1
         return self.values(first, count)
 
