@@ -730,6 +730,8 @@ def run(kscene: KernelScene, photons: int, seed: int = 1, threads: int | None = 
                         # with ``precision``, the photons it should take (σ ∝ 1/√N), capped at ``photons``
                         total = photons if not worst or not np.isfinite(worst) else \
                             int(min(photons, max(done, done * (worst / precision) ** 2)))
+                        if hasattr(progress, "estimating"):     # no σ yet: the cap is no estimate of the end
+                            progress.estimating = precision is not None and not (worst and np.isfinite(worst))
                         progress(done, total, time.perf_counter() - start)
                     if stop is not None and stop() and done < photons:
                         partial = ended = True
@@ -772,9 +774,14 @@ def progress_printer(stream=sys.stderr, every: float = 2.0):
             return
         last[0] = seconds
         rate = done / seconds if seconds > 0 else 0.0
+        if show.estimating:          # a precision run before its first σ: no end to count down to yet
+            print("  %d photons  %.3g photons/s  (σ goal: first estimate still to come)" % (done, rate),
+                  file=stream, flush=True)
+            return
         left = (total - done) / rate if rate > 0 else float("nan")
         print("  %5.1f%%  %d/%d photons  %.3g photons/s  %.0f s left"
               % (100.0 * done / total, done, total, rate, left), file=stream, flush=True)
 
     show.note = note
+    show.estimating = False      # set by run(): precision asked, no σ yet
     return show

@@ -56,3 +56,16 @@ def test_a_ready_kernel_says_nothing(tmp_path):
     kscene = _kscene(tmp_path)
     simulate.compile_kernel(kscene)                      # compiled (or loaded) now
     assert simulate.compile_kernel(kscene, note=notes.append) >= 0 and notes == []
+
+
+def test_a_precision_run_gives_no_time_left_before_its_first_sigma(tmp_path):
+    """Before the first σ estimate a precision run's only end is its photon cap (1e10 by default): a
+    countdown to it ('118 s left', '21377 s left') says nothing.  Breaks if the first lines count down to
+    the cap, or if the later lines lose their time left."""
+    out = io.StringIO()
+    progress = simulate.progress_printer(out, every=0.0)
+    simulate.run(_kscene(tmp_path), 10 ** 9, seed=1, threads=1, progress=progress, precision=0.01,
+                 min_photons=2 * simulate.CHUNK)
+    lines = [line for line in out.getvalue().splitlines() if "photons" in line]
+    assert "first estimate still to come" in lines[0] and "s left" not in lines[0]
+    assert len(lines) > 2 and "s left" in lines[-1]
