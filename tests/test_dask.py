@@ -217,7 +217,9 @@ def test_sweep_stopped_and_resumed(tmp_path):
 
 def test_sweep_on_dask_survives_a_killed_worker(client, tmp_path):
     out = tmp_path / "sweep"
-    tasks = sweep.tasks_for(["angers"], ["seed=5..6"], ["--photons", "200000"])
+    # runs long enough (~2 s each) that the once-a-second poll below finds one running (at 2e5 photons a
+    # run could start and end between two polls, and nothing was killed)
+    tasks = sweep.tasks_for(["angers"], ["seed=5..6"], ["--photons", "2000000"])
     pids = _worker_pids(client)
     killed = []
 
@@ -230,7 +232,7 @@ def test_sweep_on_dask_survives_a_killed_worker(client, tmp_path):
 
     assert sweep.run_sweep(tasks, out, client=client, stop=stop) == 0
     assert killed and all(t.status == "done" for t in tasks)
-    assert cli.main(["run", "angers", "--photons", "200000", "--seed", "5", "--threads", "1", "--quiet",
+    assert cli.main(["run", "angers", "--photons", "2000000", "--seed", "5", "--threads", "1", "--quiet",
                      "--out", str(tmp_path / "direct")]) == 0
     assert _sensors(out / "seed=5") == _sensors(tmp_path / "direct")
     client.wait_for_workers(2, timeout=60)
