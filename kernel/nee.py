@@ -74,6 +74,7 @@ EXACT_TRIANGLES = 256   # near a mesh of at most this many triangles, one is dra
 MESH_NEAR = 4.0  # near a larger mesh, the triangle drawn by area is sampled by solid angle within this · its radius
 FAR = 10.0      # discs farther than FAR radii: points drawn by area
 NEAR_PICKED = 1.0    # discs nearer than this · radius · √(targets) get their own next event (kernel.targets.near_discs)
+MESH_OWN = 2.0       # organs always get their own next event from within this · their bounding radius (kernel.targets)
 NEAR_FLOOR = 2.0     # ... and always those nearer than this · radius (kernel.targets.near_discs)
 ZONE_HEIGHT = 4.0    # a disc whose centre is nearer to a plane than this · its radius gets a zone on it
 INV_4PI = 1.0 / (4.0 * math.pi)

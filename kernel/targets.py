@@ -11,7 +11,7 @@ import math
 
 import numpy as np
 
-from .nee import NEAR, NEAR_FLOOR, NEAR_PICKED
+from .nee import MESH_OWN, NEAR, NEAR_FLOOR, NEAR_PICKED
 from .records import T_DISC, T_MESH1, T_MESH2, T_QUAD, Targets, f64, i64
 
 
@@ -87,7 +87,11 @@ def build_targets(sens, sens_area, sens_bound, n_receivers_rows, tri_receiver, t
     for s in range(n_sensors):
         if sensor_target[s] >= 0 and sens_kind[s] == 0:
             disc_radius[sensor_target[s]] = sens_bound[s]
-    near_start, near_list, near_r2 = near_discs(tri_verts, center, disc_radius)
+    # organs near a vertex get next events of their own too (a random pick would deposit n / picks times
+    # their large near light, rarely: the far red a bud gets from the leaf and stem it touches)
+    mesh_bound = np.array([math.sqrt(img_near2[t]) / NEAR if kind[t] >= T_MESH2 else 0.0 for t in range(len(kind))])
+    mesh_radius = mesh_near_radius(center, mesh_bound)
+    near_start, near_list, near_r2 = near_discs(tri_verts, center, disc_radius, mesh_radius=mesh_radius)
     return Targets(bool(sensors), bool(receivers), 0, np.zeros(0, np.uint8), np.zeros(0, np.uint8),
                    np.ascontiguousarray(kind, dtype=np.int32), i64(row), i64(abs_row), i64(ref), i64(first),
                    i64(count), f64(area), center, f64(near2), f64(img_near2),
@@ -95,7 +99,7 @@ def build_targets(sens, sens_area, sens_bound, n_receivers_rows, tri_receiver, t
                    near_start, near_list, near_r2, sensor_target, receiver_target)
 
 
-def near_discs(tri_verts, center, disc_radius, factor=NEAR_PICKED):
+def near_discs(tri_verts, center, disc_radius, factor=NEAR_PICKED, mesh_radius=None):
     """Which disc targets are *near* a vertex, for :func:`kernel.nee.next_event`'s own events, and on which triangles.
 
     A random pick among n targets deposits n times a target's expected value; near a disc (solid angle
@@ -116,12 +120,20 @@ def near_discs(tri_verts, center, disc_radius, factor=NEAR_PICKED):
         d2 = np.einsum("ij,ij->i", gap, gap)
         d2[t] = np.inf
         radius[t] = max(min(radius[t], 1.5 * math.sqrt(d2.min())), NEAR_FLOOR * disc_radius[t])
+    meshes = np.zeros(n, bool)
+    if mesh_radius is not None:
+        meshes = (disc_radius <= 0) & (np.asarray(mesh_radius) > 0)
+        radius = np.where(meshes, mesh_radius, radius)
     near_r2 = np.ascontiguousarray(radius ** 2, dtype=np.float64)
     lo, hi = tri_verts.min(axis=1), tri_verts.max(axis=1)
     pairs_tri, pairs_t = [], []
+    candidates = _grid(lo, hi, radius[meshes].max()) if meshes.any() else None
     for t in np.flatnonzero(near_r2 > 0):
-        gap = np.clip(center[t], lo, hi) - center[t]
+        cand = candidates(center[t]) if meshes[t] else slice(None)
+        gap = np.clip(center[t], lo[cand], hi[cand]) - center[t]
         tris = np.flatnonzero(np.einsum("ij,ij->i", gap, gap) < near_r2[t])
+        if meshes[t]:
+            tris = cand[tris]
         pairs_tri.append(tris)
         pairs_t.append(np.full(len(tris), t))
     tris = np.concatenate(pairs_tri) if pairs_tri else np.zeros(0, np.int64)
@@ -130,3 +142,52 @@ def near_discs(tri_verts, center, disc_radius, factor=NEAR_PICKED):
     near_start = np.zeros(len(tri_verts) + 1, np.int64)
     np.cumsum(np.bincount(tris, minlength=len(tri_verts)), out=near_start[1:])
     return near_start, np.ascontiguousarray(ts[order], dtype=np.int64), near_r2
+
+
+def mesh_near_radius(center, bound, factor=NEAR_PICKED):
+    """Near radii of mesh targets (0 for the others), the rule of :func:`near_discs` for discs: a · √n (a
+    the bounding radius, n the targets), where a random pick would deposit n / picks times a light of solid
+    angle ≳ 1/n, capped at 1.5 × the distance to the nearest other target (a vertex amid a canopy then
+    makes a handful of own events, not hundreds) and at least :data:`~kernel.nee.MESH_OWN` · a.
+    ``center`` (n, 3), ``bound`` (n,).  Returns (n,) float64."""
+    n = len(bound)
+    radius = np.zeros(n)
+    mesh = np.flatnonzero(bound > 0)
+    if len(mesh) == 0:
+        return radius
+    c = center[mesh]
+    nearest = np.full(len(mesh), np.inf)
+    for a in range(0, len(mesh), 1024):          # nearest other target, in blocks (n up to ~10^4)
+        d2 = ((c[a:a + 1024, None, :] - center[None, :, :]) ** 2).sum(axis=2)
+        d2[np.arange(len(d2)), mesh[a:a + 1024]] = np.inf
+        nearest[a:a + 1024] = np.sqrt(d2.min(axis=1))
+    b = bound[mesh]
+    radius[mesh] = np.maximum(np.minimum(factor * b * math.sqrt(n), 1.5 * nearest), MESH_OWN * b)
+    return radius
+
+
+def _grid(lo, hi, reach):
+    """``candidates(c)``: the triangles (sorted indices) that may come within ``reach`` of point c, from a grid of
+    cells of size ``reach`` over the triangles' bounding-box centres; triangles wider than a cell are always
+    candidates.  ``lo``, ``hi`` (T, 3) the triangles' bounds.  Keeps :func:`near_discs` for thousands of organ
+    targets O(targets · neighbours) instead of O(targets · triangles)."""
+    cell = max(float(reach), 1e-30)
+    mid = (lo + hi) / 2
+    wide = np.flatnonzero((hi - lo).max(axis=1) > cell)
+    small = np.setdiff1d(np.arange(len(lo)), wide)
+    key = np.floor(mid[small] / cell).astype(np.int64)
+    order = np.lexsort(key.T[::-1])
+    key, small = key[order], small[order]
+    first = np.flatnonzero(np.r_[True, (key[1:] != key[:-1]).any(axis=1)]) if len(key) else np.zeros(0, np.int64)
+    bounds = np.r_[first, len(key)]
+    buckets = {tuple(key[f]): small[f:e] for f, e in zip(bounds[:-1].tolist(), bounds[1:].tolist())}
+    steps = range(-2, 3)       # a triangle within reach of c: its centre within reach + cell / 2 ... < 2 cells
+    empty = np.zeros(0, np.int64)
+
+    def candidates(c):
+        c0 = np.floor(np.asarray(c) / cell).astype(np.int64)
+        found = [buckets.get((c0[0] + dx, c0[1] + dy, c0[2] + dz), empty)
+                 for dx in steps for dy in steps for dz in steps]
+        return np.concatenate(found + [wide])      # buckets and wide triangles are disjoint
+
+    return candidates

@@ -295,10 +295,10 @@ class LightModel:
             return StepResult(self.step - 1, {}, 0, time.perf_counter() - t0, 0, 0, 0)
         outside = self._outside(organs)
         targets = None if self.targets is None else [o.module in self.targets for o in organs]
-        self.kscene.set_organs(organs, self.materials, targets)
         self.kscene.nee_sensors = False       # steps report organs; sensors are counted, not targeted
+        self.kscene.set_organs(organs, self.materials, targets)
         self.kscene.nee_images = self.mirror_events
-        self.kscene.retarget()
+        self.kscene.retarget()                # (a no-op unless set_organs' targets are out of date)
         if not self._pruned and organs:       # once, with the first plant: which vertices see organs
             self.kscene.prune_next_events(threads=self.threads, keep=self.materials)   # organs' materials stay on
             self._pruned = True

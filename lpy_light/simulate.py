@@ -330,6 +330,12 @@ class KernelScene:
 
     def retarget(self):
         """Rebuild the next-event target arrays after a change of organs or of ``nee_*`` flags."""
+        mask = self.nee_receiver_mask
+        key = (id(self.tri_verts), self.tri_verts.shape, id(self.tri_receiver), id(self.sens), bool(self.nee_sensors), bool(self.nee_receivers),
+               int(self.nee_picks), None if mask is None else np.asarray(mask).tobytes())
+        if getattr(self, "_targets_key", None) == key:
+            return                   # the same organs and flags: the arrays built last time still hold
+        self._targets_key = key
         sensors = self.chamber.sensors
         if len(sensors):
             half_diag = np.linalg.norm(sensors.corners - sensors.center[:, None, :], axis=2).max(axis=1)
