@@ -57,6 +57,14 @@ _SCENE_FLAG_ROBUST = 1 << 2
 _BUILD_QUALITY_HIGH = 2
 FEATURE_ALL = 0xFFFFFFFF
 
+#: Embree's device configuration.  Embree picks its code path (BVH layout, SIMD width of the triangle tests)
+#: from the CPU, and two paths can round a hit differently at a shared edge: the same seed then gave other
+#: numbers on an AVX-512 machine than on an AVX2 one (the rose of ``tests/test_kernel_digests.py``).  Capping
+#: the path at AVX2 gives every x86-64 machine with AVX2 (all servers since ~2013) the same numbers, so a run
+#: split over a Dask cluster of mixed machines equals the same run on one; speed is the same within noise
+#: (Angers, 1e7 photons, nee: 8.1-9.4 s either way on an AVX-512 machine).
+DEVICE_CONFIG = b"verbose=0,max_isa=avx2"
+
 
 def _find_library() -> str:
     import embreex
@@ -162,7 +170,7 @@ class EmbreeScene:
 
     def __init__(self, one_sided=None, two_sided=None, sensors=None):
         L = lib()
-        self._device = L.rtcNewDevice(b"verbose=0")
+        self._device = L.rtcNewDevice(DEVICE_CONFIG)
         if not self._device:
             raise RuntimeError("Embree could not create a device")
         self._scene = L.rtcNewScene(self._device)
