@@ -39,6 +39,11 @@ the wall behind a leaf scatter to it is estimated at every such vertex instead
 of waiting for a photon to cross it: those crossings, counted, held nearly all
 of a rose leaf's and bud's variance (a bud's PAR spread 10-29 % over seeds at 1e6
 photons with a reported σ of 1-2 %; now 2-6 %, as reported).
+Organ targets (the receivers a plant's rules read) are picked in proportion to their importance seen from
+the vertex, ~1 / max(d², a²) (:func:`importance_cdf`), not uniformly: a bud then gets its picks from the leaf
+above it rather than from across the chamber.  An organ's own events (from vertices within its near radius)
+are each the mean of :data:`OWN_SAMPLES`, and those at vertices on other organs reached straight from a
+next-event vertex are replaced by two-step events from every vertex (:mod:`kernel.organ_zones`).
 For quads, a vertex closer than :data:`NEAR` times the quad's bounding radius
 makes no next event for it, and the segment's real crossing is counted instead
 — a fixed split of the path space, so still unbiased.
@@ -74,8 +79,11 @@ EXACT_TRIANGLES = 256   # near a mesh of at most this many triangles, one is dra
 MESH_NEAR = 4.0  # near a larger mesh, the triangle drawn by area is sampled by solid angle within this · its radius
 FAR = 10.0      # discs farther than FAR radii: points drawn by area
 NEAR_PICKED = 1.0    # discs nearer than this · radius · √(targets) get their own next event (kernel.targets.near_discs)
-MESH_OWN = 2.0       # organs always get their own next event from within this · their bounding radius (kernel.targets)
 NEAR_FLOOR = 2.0     # ... and always those nearer than this · radius (kernel.targets.near_discs)
+MESH_OWN = 2.0       # organs always get their own next event from within this · their bounding radius (kernel.targets)
+OWN_SAMPLES = 8      # an organ's own next event is the mean of this many: the near light of a bud (the stem and
+                     # leaf it touches) varies much over the bud's surface, and near vertices are few
+                     # (rose, 13 buds, 1e6 photons: far-red spread over seeds 29 % -> 17 %, at no measurable cost)
 ZONE_HEIGHT = 4.0    # a disc whose centre is nearer to a plane than this · its radius gets a zone on it
 INV_4PI = 1.0 / (4.0 * math.pi)
 
@@ -287,7 +295,7 @@ def _zone_of(t, pid, zones):
 
 
 @helper
-def next_event(v, stat, cover_pid, control, geo, mat, sens, tgt, zones, photon, stats):
+def next_event(v, stat, cover_pid, organ_cover, control, geo, mat, sens, tgt, zones, photon, stats):
     """Expected deposits of the segment leaving vertex ``v`` (:class:`~kernel.records.Vertex`) on every target;
     returns how many were written.
 
@@ -295,25 +303,28 @@ def next_event(v, stat, cover_pid, control, geo, mat, sens, tgt, zones, photon, 
     side the photon arrived from), its mode (V_ISOTROPIC, V_LAMBERT or V_SURFACE of material m) and its
     round-off scale: shadow rays start and stop ``geo.offset_rel`` · max(|v|, scale) off surfaces.  The
     photon's weights are ``photon.w`` (B,).  Deposits go to ``photon.out_k[i]`` (tally row) and
-    ``photon.out_w[i, :]`` for i < the returned count (at most 3 per target).  ``stats.nee_stats[stat]``
+    ``photon.out_w[i, :]`` for i < the returned count.  ``stats.nee_stats[stat]``
     counts shadow rays cast and found unblocked, and sums the weight they deposit (to switch off vertices
     that never see a target: see :func:`lpy_light.simulate.KernelScene.prune_next_events`).
     ``tgt.picks`` > 0: only that many targets, drawn uniformly (with replacement), each deposit scaled by
     n_targets / picks — unbiased, and a vertex then costs ``picks`` shadow rays instead of one per target.
-    With picks, a disc target nearer to v than √``tgt.near_r2[t]`` gets a next event of its own, unscaled,
-    and is skipped by the picks: a random pick would deposit n_targets / picks times its large expected
-    value, rarely (see :func:`kernel.targets.near_discs`).  Its candidates are
+    With picks, a target nearer to v than √``tgt.near_r2[t]`` gets a next event of its own, unscaled (a
+    mesh: :data:`OWN_SAMPLES` of them, each weighted 1 / OWN_SAMPLES), and is skipped by the picks: a random
+    pick would deposit n_targets / picks times its large expected value, rarely (see
+    :func:`kernel.targets.near_discs`).  Its candidates are
     ``tgt.near_list[tgt.near_start[v.tri] : tgt.near_start[v.tri + 1]]``.  ``control``: the control variate
     is on (:mod:`kernel.control`): each pick of a sensor subtracts its γ.
     ``cover_pid`` ≥ 0: v is a vertex on plane ``cover_pid`` reached straight from a next-event vertex, whose
     zone events (:func:`kernel.zones.zone_event`) already served the near discs that have a zone on this
-    plane: their own events are skipped here.
+    plane: their own events are skipped here.  ``organ_cover`` ≥ 0: v is on an organ reached straight from a
+    next-event vertex, by a segment of that length²; that vertex's organ zone events
+    (:func:`kernel.organ_zones.organ_zone_event`) served the own events of the organ targets near v (all but
+    v's own organ) whose near radius² is at most that: skipped here.
     A point on a mesh target is seen when the first surface met on the way is the target's, at x
     (:func:`kernel.rays.reaches`); a sensor's, when nothing is in the way (a shadow ray).
     """
     vx, vy, vz, nx, ny, nz, mode, m, vscale, vtri = v
-    w, contrib, out_k, out_w, state = photon.w, photon.contrib, photon.out_k, photon.out_w, photon.state
-    counters, nee_stats = stats.counters, stats.nee_stats
+    w, out_k, out_w, state = photon.w, photon.out_k, photon.out_w, photon.state
     picks = tgt.picks
     near_start, near_r2 = tgt.near_start, tgt.near_r2
     n_bands = w.shape[0]
@@ -325,24 +336,43 @@ def next_event(v, stat, cover_pid, control, geo, mat, sens, tgt, zones, photon, 
     else:
         n_iter, scale = n_tgt, 1.0
     n_near = near_start[vtri + 1] - near_start[vtri] if scale != 1.0 and vtri >= 0 else 0
+    by_importance = scale != 1.0 and tgt.weight.shape[0] == n_tgt
+    total = 0.0
+    if by_importance:
+        total = importance_cdf(v, n_near > 0, tgt, photon.cdf)
+        if not total > 0.0:
+            n_iter = 0
     for j in range(n_near + n_iter):
-        if j < n_near:            # a near disc: its own next event
+        if j < n_near:            # a near target: its own next event
             t = tgt.near_list[near_start[vtri] + j]
             tscale = 1.0
+        elif by_importance:       # a pick in proportion to the target's importance seen from v
+            t = search_cdf(photon.cdf, 0, n_tgt - 1, uniform(state) * total)
+            p_t = (photon.cdf[t] - (photon.cdf[t - 1] if t > 0 else 0.0)) / total
+            if not p_t > 0.0:
+                continue
+            tscale = 1.0 / (n_iter * p_t)
         else:
             t = j - n_near if scale == 1.0 else min(int(uniform(state) * n_tgt), n_tgt - 1)
             tscale = scale
         ex, ey, ez = vx - tgt.center[t, 0], vy - tgt.center[t, 1], vz - tgt.center[t, 2]
         d2c = ex * ex + ey * ey + ez * ez
         if n_near > 0 and (d2c < near_r2[t]) != (j < n_near):
-            continue          # a near disc is served by its own event only; a listed one that is not near, by picks
+            continue          # a near target is served by its own event only; a listed one that is not near, by picks
         if j < n_near and cover_pid >= 0 and _zone_of(t, cover_pid, zones):
             continue          # served by the zone events of the vertex this photon came from
         kind = tgt.kind[t]
+        if j < n_near and kind >= T_MESH2 and organ_cover >= near_r2[t] and geo.receiver[vtri] != tgt.ref[t]:
+            continue          # served by the organ zone events of the vertex this photon came from
+        if j < n_near and kind >= T_MESH2:    # a mesh's own events: several, their mean
+            for _ in range(OWN_SAMPLES):
+                u1, u2, u3 = uniform(state), uniform(state), uniform(state)
+                n_out = target_event(v, vmag, t, d2c, 1.0 / OWN_SAMPLES, w, u1, u2, u3, stat, geo, mat, sens, tgt,
+                                     photon, stats, n_out)
+            continue
         u1, u2, u3 = uniform(state), uniform(state), uniform(state)
         if d2c < tgt.near2[t]:
             continue          # too close: 1/d² would be heavy-tailed; this segment's crossings are counted
-        # (out_k, out_w hold at most 3 per iteration: size them 3 * (picks + n_targets))
         if (control and scale != 1.0 and j >= n_near and kind <= T_QUAD     # a pick (not a near disc's own event),
                 and not (kind == T_DISC and d2c < (NEAR_FLOOR * sens.radius[tgt.ref[t]]) ** 2)):   # γ a fair guess
             gam, cg = point_view(t, v, tgt, sens)
@@ -352,112 +382,149 @@ def next_event(v, stat, cover_pid, control, geo, mat, sens, tgt, zones, photon, 
                     f = 1.0 if mode != V_SURFACE else mat.prob[m, DIFFUSE_R if cg > 0.0 else DIFFUSE_T, b]
                     out_w[n_out, b] = -w[b] * gam * f * tscale
                 n_out += 1
-        g = -1
-        omega = 0.0
-        if kind == T_DISC:
-            s = tgt.ref[t]
-            mx, my, mz = sens.normal[s, 0], sens.normal[s, 1], sens.normal[s, 2]
-            if d2c > (FAR * sens.radius[s]) ** 2:    # far: uniform on the disc, A |cos θ_x| / d² nearly constant
-                if (vx - sens.center[s, 0]) * mx + (vy - sens.center[s, 1]) * my + (vz - sens.center[s, 2]) * mz <= 0.0:
-                    continue
-                px, py, pz = sensor_point(kind, s, u1, u2, u3, sens)
-                kind = T_QUAD      # from here on: a point drawn by area
-            else:
-                px, py, pz, omega = disc_point_by_solid_angle(vx, vy, vz, s, u1, u2, sens)
-                if omega == 0.0:
-                    continue     # behind the sensor's plane: cannot cross it from the front
-        elif kind == T_QUAD:
-            s = tgt.ref[t]
-            mx, my, mz = sens.normal[s, 0], sens.normal[s, 1], sens.normal[s, 2]
+        n_out = target_event(v, vmag, t, d2c, tscale, w, u1, u2, u3, stat, geo, mat, sens, tgt, photon, stats, n_out)
+    return n_out
+
+
+@helper
+def importance_cdf(v, has_near, tgt, cdf):
+    """Cumulative importances of the targets for the picks of vertex ``v`` into ``cdf`` (n,); returns their sum.
+
+    Target t's importance is ``tgt.weight[t] / max(d², a²)`` (d from v to its centre, a its bounding radius):
+    about the solid angle it subtends per unit of its area, i.e. its share of v's light relative to its own
+    total, so that each target's picks come from the vertices that light it most.  (Uniform picks gave a
+    bud as few picks from a vertex on the leaf above it as from one across the chamber, each deposit then
+    scaled by n / picks: a heavy tail.)  Zero for targets served by an own event at v (``has_near`` and v
+    within their near radius: v's own organ always is)."""
+    vx, vy, vz = v.x, v.y, v.z
+    total = 0.0
+    for t in range(tgt.kind.shape[0]):
+        ex, ey, ez = vx - tgt.center[t, 0], vy - tgt.center[t, 1], vz - tgt.center[t, 2]
+        d2 = ex * ex + ey * ey + ez * ez
+        if not (has_near and d2 < tgt.near_r2[t]):
+            total += tgt.weight[t] / max(d2, tgt.img_near2[t] * (1.0 / (NEAR * NEAR)))
+        cdf[t] = total
+    return total
+
+
+@helper
+def target_event(v, vmag, t, d2c, tscale, w, u1, u2, u3, stat, geo, mat, sens, tgt, photon, stats, n_out):
+    """One next event from vertex ``v`` to target t (|v − its centre|² = ``d2c``), weighted ``tscale``, for a
+    photon of weights ``w`` (B,), from three uniforms: a point x on t (a disc's by solid angle, a mesh's
+    triangle by solid angle near it, else by area), the leaving pdf towards x, and one ray for what is in
+    the way.  Writes t's deposit (and, for a mesh with an absorbed row, what the side met absorbs) from
+    ``photon.out_k[n_out]`` / ``photon.out_w[n_out]`` on; returns the new count."""
+    vx, vy, vz, nx, ny, nz, mode, m, vscale, vtri = v
+    contrib, out_k, out_w = photon.contrib, photon.out_k, photon.out_w
+    counters, nee_stats = stats.counters, stats.nee_stats
+    n_bands = w.shape[0]
+    kind = tgt.kind[t]
+    g = -1
+    omega = 0.0
+    if kind == T_DISC:
+        s = tgt.ref[t]
+        mx, my, mz = sens.normal[s, 0], sens.normal[s, 1], sens.normal[s, 2]
+        if d2c > (FAR * sens.radius[s]) ** 2:    # far: uniform on the disc, A |cos θ_x| / d² nearly constant
             if (vx - sens.center[s, 0]) * mx + (vy - sens.center[s, 1]) * my + (vz - sens.center[s, 2]) * mz <= 0.0:
-                continue
+                return n_out
             px, py, pz = sensor_point(kind, s, u1, u2, u3, sens)
+            kind = T_QUAD      # from here on: a point drawn by area
         else:
-            near = d2c < tgt.img_near2[t]          # within NEAR bounding radii of the mesh
-            if near and tgt.count[t] <= EXACT_TRIANGLES:
-                # a triangle drawn in proportion to the solid angle it subtends: Ω_total · p(ω) · V, at most
-                # 4π · max p per layer of the mesh however near v is, and no lottery among its triangles
-                g, om_total = _triangle_by_solid_angle(vx, vy, vz, t, u3, tgt, geo)
-                if g < 0:
-                    continue
-            else:
-                # a triangle drawn by area: where v is near it (a large mesh), Ω_g · A / A_g · p(ω) · V, bounded
-                g, px, py, pz = mesh_point(t, u1, u2, u3, tgt, geo)
-                om_total = tgt.area[t] / _tri_area(geo.verts[g], 0, 1, 2) if near and _near_triangle(
-                    vx, vy, vz, geo.verts[g]) else 0.0
-            mx, my, mz = geo.normal[g, 0], geo.normal[g, 1], geo.normal[g, 2]
-            if om_total > 0.0:                     # a direction uniform in the triangle's solid angle
-                sx, sy, sz, om = spherical_triangle(vx, vy, vz, geo.verts[g, 0], geo.verts[g, 1], geo.verts[g, 2],
-                                                    u1, u2)
-                den = sx * mx + sy * my + sz * mz
-                if om == 0.0 or den == 0.0:
-                    continue
-                tt = ((geo.verts[g, 0, 0] - vx) * mx + (geo.verts[g, 0, 1] - vy) * my
-                      + (geo.verts[g, 0, 2] - vz) * mz) / den
-                if not tt > 0.0:
-                    continue
-                px, py, pz = vx + tt * sx, vy + tt * sy, vz + tt * sz
-                omega = om_total if near and tgt.count[t] <= EXACT_TRIANGLES else om * om_total
-        dx, dy, dz = px - vx, py - vy, pz - vz
-        dist2 = dx * dx + dy * dy + dz * dz
-        if not dist2 > 0.0:
-            continue
-        dist = math.sqrt(dist2)
-        dx, dy, dz = dx / dist, dy / dist, dz / dist
-        cos_x = dx * mx + dy * my + dz * mz
-        if kind != T_MESH2 and cos_x >= 0.0:
-            continue          # sensors and one-sided receivers are met from the front only
-        geom = tscale * (omega if omega > 0.0 else tgt.area[t] * abs(cos_x) / dist2)
-        cos_v = dx * nx + dy * ny + dz * nz
-        if mode == V_ISOTROPIC:
-            for b in range(n_bands):
-                contrib[b] = w[b] * INV_4PI * geom
-            side = 0.0
-        elif mode == V_LAMBERT:
-            if cos_v <= 0.0:
-                continue
-            for b in range(n_bands):
-                contrib[b] = w[b] * cos_v / math.pi * geom
-            side = 1.0
+            px, py, pz, omega = disc_point_by_solid_angle(vx, vy, vz, s, u1, u2, sens)
+            if omega == 0.0:
+                return n_out     # behind the sensor's plane: cannot cross it from the front
+    elif kind == T_QUAD:
+        s = tgt.ref[t]
+        mx, my, mz = sens.normal[s, 0], sens.normal[s, 1], sens.normal[s, 2]
+        if (vx - sens.center[s, 0]) * mx + (vy - sens.center[s, 1]) * my + (vz - sens.center[s, 2]) * mz <= 0.0:
+            return n_out
+        px, py, pz = sensor_point(kind, s, u1, u2, u3, sens)
+    else:
+        near = d2c < tgt.img_near2[t]          # within NEAR bounding radii of the mesh
+        if near and tgt.count[t] <= EXACT_TRIANGLES:
+            # a triangle drawn in proportion to the solid angle it subtends: Ω_total · p(ω) · V, at most
+            # 4π · max p per layer of the mesh however near v is, and no lottery among its triangles
+            g, om_total = _triangle_by_solid_angle(vx, vy, vz, t, u3, tgt, geo)
+            if g < 0:
+                return n_out
         else:
-            ev = DIFFUSE_R if cos_v > 0.0 else DIFFUSE_T
-            any_light = False
-            for b in range(n_bands):
-                contrib[b] = w[b] * mat.prob[m, ev, b] * abs(cos_v) / math.pi * geom
-                any_light = any_light or contrib[b] > 0.0
-            if not any_light:
-                continue
-            side = 1.0 if cos_v > 0.0 else -1.0
-        pmag = max(abs(px), abs(py), abs(pz))
-        if g >= 0:      # a mesh target is a surface: its triangle's round-off
-            for i in range(3):
-                for k in range(3):
-                    pmag = max(pmag, abs(geo.verts[g, i, k]))
-        eps = geo.offset_rel * (vmag + pmag)
-        tol = 2.0 * eps
-        if g >= 0:      # a mesh target's plane has a float32 error seen from v (END_REL · d)
-            tol += END_REL * dist
-        if dist - tol <= 0.0:
-            continue
-        counters[C_SHADOW] += 1
-        nee_stats[stat, 0] += 1
-        ox, oy, oz = vx + side * eps * nx, vy + side * eps * ny, vz + side * eps * nz
-        share = seen_share(g, geo, photon.scratch, (ox, oy, oz), (dx, dy, dz), dist - tol, dist + tol, tgt.ref[t],
-                           (px, py, pz))
-        if share == 0.0:
-            continue
+            # a triangle drawn by area: where v is near it (a large mesh), Ω_g · A / A_g · p(ω) · V, bounded
+            g, px, py, pz = mesh_point(t, u1, u2, u3, tgt, geo)
+            om_total = tgt.area[t] / _tri_area(geo.verts[g], 0, 1, 2) if near and _near_triangle(
+                vx, vy, vz, geo.verts[g]) else 0.0
+        mx, my, mz = geo.normal[g, 0], geo.normal[g, 1], geo.normal[g, 2]
+        if om_total > 0.0:                     # a direction uniform in the triangle's solid angle
+            sx, sy, sz, om = spherical_triangle(vx, vy, vz, geo.verts[g, 0], geo.verts[g, 1], geo.verts[g, 2],
+                                                u1, u2)
+            den = sx * mx + sy * my + sz * mz
+            if om == 0.0 or den == 0.0:
+                return n_out
+            tt = ((geo.verts[g, 0, 0] - vx) * mx + (geo.verts[g, 0, 1] - vy) * my
+                  + (geo.verts[g, 0, 2] - vz) * mz) / den
+            if not tt > 0.0:
+                return n_out
+            px, py, pz = vx + tt * sx, vy + tt * sy, vz + tt * sz
+            omega = om_total if near and tgt.count[t] <= EXACT_TRIANGLES else om * om_total
+    dx, dy, dz = px - vx, py - vy, pz - vz
+    dist2 = dx * dx + dy * dy + dz * dz
+    if not dist2 > 0.0:
+        return n_out
+    dist = math.sqrt(dist2)
+    dx, dy, dz = dx / dist, dy / dist, dz / dist
+    cos_x = dx * mx + dy * my + dz * mz
+    if kind != T_MESH2 and cos_x >= 0.0:
+        return n_out          # sensors and one-sided receivers are met from the front only
+    geom = tscale * (omega if omega > 0.0 else tgt.area[t] * abs(cos_x) / dist2)
+    cos_v = dx * nx + dy * ny + dz * nz
+    if mode == V_ISOTROPIC:
         for b in range(n_bands):
-            contrib[b] *= share
-        nee_stats[stat, 1] += 1
-        out_k[n_out] = tgt.row[t]
+            contrib[b] = w[b] * INV_4PI * geom
+        side = 0.0
+    elif mode == V_LAMBERT:
+        if cos_v <= 0.0:
+            return n_out
         for b in range(n_bands):
-            out_w[n_out, b] = contrib[b]
-            nee_stats[stat, 2] += contrib[b]
+            contrib[b] = w[b] * cos_v / math.pi * geom
+        side = 1.0
+    else:
+        ev = DIFFUSE_R if cos_v > 0.0 else DIFFUSE_T
+        any_light = False
+        for b in range(n_bands):
+            contrib[b] = w[b] * mat.prob[m, ev, b] * abs(cos_v) / math.pi * geom
+            any_light = any_light or contrib[b] > 0.0
+        if not any_light:
+            return n_out
+        side = 1.0 if cos_v > 0.0 else -1.0
+    pmag = max(abs(px), abs(py), abs(pz))
+    if g >= 0:      # a mesh target is a surface: its triangle's round-off
+        for i in range(3):
+            for k in range(3):
+                pmag = max(pmag, abs(geo.verts[g, i, k]))
+    eps = geo.offset_rel * (vmag + pmag)
+    tol = 2.0 * eps
+    if g >= 0:      # a mesh target's plane has a float32 error seen from v (END_REL · d)
+        tol += END_REL * dist
+    if dist - tol <= 0.0:
+        return n_out
+    counters[C_SHADOW] += 1
+    nee_stats[stat, 0] += 1
+    ox, oy, oz = vx + side * eps * nx, vy + side * eps * ny, vz + side * eps * nz
+    share = seen_share(g, geo, photon.scratch, (ox, oy, oz), (dx, dy, dz), dist - tol, dist + tol, tgt.ref[t],
+                       (px, py, pz))
+    if share == 0.0:
+        return n_out
+    for b in range(n_bands):
+        contrib[b] *= share
+    nee_stats[stat, 1] += 1
+    out_k[n_out] = tgt.row[t]
+    for b in range(n_bands):
+        out_w[n_out, b] = contrib[b]
+        nee_stats[stat, 2] += contrib[b]
+    n_out += 1
+    if tgt.abs_row[t] >= 0:
+        mm = geo.material[g, 0] if cos_x < 0.0 else geo.material[g, 1]
+        out_k[n_out] = tgt.abs_row[t]
+        for b in range(n_bands):
+            out_w[n_out, b] = contrib[b] * mat.prob[mm, ABSORB, b]
         n_out += 1
-        if tgt.abs_row[t] >= 0:
-            mm = geo.material[g, 0] if cos_x < 0.0 else geo.material[g, 1]
-            out_k[n_out] = tgt.abs_row[t]
-            for b in range(n_bands):
-                out_w[n_out, b] = contrib[b] * mat.prob[mm, ABSORB, b]
-            n_out += 1
     return n_out

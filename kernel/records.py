@@ -105,6 +105,8 @@ Targets = namedtuple("Targets", [
     "near_start",    # (T + 1,) int64, and
     "near_list",     # int64: the discs near each triangle, which get an event of their own (kernel.nee.near_discs)
     "near_r2",       # (n,) float64: their near radius²
+    "weight",        # (n,) float64: picks drawn by importance, weight[t] / max(d², a²) (d from the vertex to t's
+                     # centre, a its bounding radius), or empty: picks drawn uniformly
     "sensor_target",  # (S,) int64: each sensor's target, or -1
     "receiver_target",  # (R,) int64: each receiver's target, or -1
 ])
@@ -129,6 +131,16 @@ Zones = namedtuple("Zones", [
     "start",         # (n + 1,) int64: zones of target t are start[t] : start[t + 1]
 ])
 
+OrganZones = namedtuple("OrganZones", [
+    "picks",         # float: two-step next events through an organ's zone per next-event vertex, on average
+    "target",        # (Z,) int64: the mesh targets that have a zone (the organ surface within their near radius)
+    "start",         # (Z + 1,) int64: zone z's triangles are tri[start[z] : start[z + 1]]
+    "tri",           # int64: the zones' triangles (organs' triangles, none of the target's own), drawn by
+    "cdf_area",      # float64: their cumulative areas within each zone (ending at 1), or by
+    "cdf_angle",     # float64: their cumulative solid angles seen from the target's centre (ending at 1)
+    "total",         # (Z, 2) float64: each zone's area and solid angle (sr) seen from its target's centre
+])
+
 Control = namedtuple("Control", [
     "on",            # bool: the control variate (nee with sensor targets and random picks)
     "batch",         # int: photons per batch of its products between bands (1: per photon)
@@ -145,7 +157,7 @@ Control = namedtuple("Control", [
 # what every run traces through
 Scene = namedtuple("Scene", ["geometry", "materials", "emitters", "sensors"])
 # next events (estimator nee; None where there is no target: their code is then not compiled)
-NextEvents = namedtuple("NextEvents", ["targets", "mirrors", "zones", "control"])
+NextEvents = namedtuple("NextEvents", ["targets", "mirrors", "zones", "organ_zones", "control"])
 
 Tallies = namedtuple("Tallies", [
     "tally",         # (K, B) float64: sums of per-photon contributions; rows (kernel.tallies): S sensor
@@ -168,9 +180,11 @@ Photon = namedtuple("Photon", [
     "w",             # (B,) float64: the photon's weights
     "dep",           # (B,) float64: what it deposits at a hit
     "contrib",       # (B,) float64: one next event's deposit
+    "w2",            # (B,) float64: the weights a two-step next event carries to its second vertex
     "out_k",         # int64: tally rows of a vertex's next-event deposits, and
     "out_w",         # (., B) float64: the deposits
     "seen",          # int64: sensors already tested on the current segment
+    "cdf",           # (n,) float64: the targets' cumulative importances at a vertex (kernel.nee.importance_cdf)
 ])
 
 Accumulator = namedtuple("Accumulator", [

@@ -96,7 +96,7 @@ def build_targets(sens, sens_area, sens_bound, n_receivers_rows, tri_receiver, t
                    np.ascontiguousarray(kind, dtype=np.int32), i64(row), i64(abs_row), i64(ref), i64(first),
                    i64(count), f64(area), center, f64(near2), f64(img_near2),
                    i64(nee_tri if nee_tri else np.zeros(0)), f64(nee_cdf if nee_cdf else np.zeros(0)),
-                   near_start, near_list, near_r2, sensor_target, receiver_target)
+                   near_start, near_list, near_r2, np.zeros(0), sensor_target, receiver_target)
 
 
 def near_discs(tri_verts, center, disc_radius, factor=NEAR_PICKED, mesh_radius=None):

@@ -29,9 +29,10 @@ Physics (SEC2's model, see ``docs/physics.md``):
   photon's current weight; receivers (solid sensors, organs) record each hit
   (incident) and the weight absorbed on them;
 * with ``nee``, every vertex where the photon leaves diffusely makes next events
-  (:mod:`kernel.nee`, through mirrors :mod:`kernel.images`, through zones
-  :mod:`kernel.zones`, with the control variate :mod:`kernel.control`), and the
-  crossings and hits those cover are not counted.
+  (:mod:`kernel.nee`, through mirrors :mod:`kernel.images`, through zones beside
+  discs :mod:`kernel.zones` and beside organs :mod:`kernel.organ_zones`, with the
+  control variate :mod:`kernel.control`), and the crossings, hits and own events
+  those cover are not counted.
 
 Positions in scene units; a new ray starts ``geo.offset_rel`` · (its round-off scale) off the surface it
 leaves (``docs/stability.md``).
@@ -46,7 +47,8 @@ from .embree import ARGS, CAND, CAND_CAP, CAND_COUNT, GEOM_ID, HIT_U, HIT_V, INV
 from .emission import emit, pick_element
 from .images import image_counted, image_event
 from .jit import helper
-from .nee import next_event
+from .nee import OWN_SAMPLES, next_event
+from .organ_zones import organ_zone_event
 from .ptr import call_ptr3, load_f32, load_i64, load_u32
 from .rays import magnitude, pick_coplanar, set_ray
 from .records import (ABSORB, DIFFUSE_R, DIFFUSE_T, SENSOR_DISC, SPECULAR_R, V_SURFACE, Accumulator, ControlWork,
@@ -55,6 +57,7 @@ from .rng import n_draws, seed_stream, uniform
 from .sampling import cosine_hemisphere, mirror, phong_lobe
 from .tallies import (C_BATCHES, C_CAND_OVERFLOW, C_LOST, C_RAYS, N_COUNTERS, fate_rows, flush,  # noqa: F401
                       record, record_all)
+from .organ_zones import organ_zone_event
 from .zones import zone_event
 
 _TFAR_MAX = 3.0e38
@@ -112,17 +115,20 @@ def work_arrays(scene, nee, scratch, tallies):
     mat = scene.materials
     n_bands = mat.prob.shape[2]
     n_rows = tallies.tally.shape[0]
-    n_slots, n_cv = 1, 0
+    n_slots, n_cv, n_cdf = 1, 0, 0
     if nee is not None:
         tgt = nee.targets
         n_tgt = tgt.kind.shape[0]
-        n_slots = 3 * (n_tgt + tgt.picks) + 2 * (1 + int(max(nee.mirrors.picks, nee.zones.picks)))  # near discs +
-        n_cv = nee.control.row.shape[0]                         # picks (3 deposits each), or image / zone events
+        n_near = int(np.max(np.diff(tgt.near_start))) if tgt.near_start.shape[0] > 1 else 0
+        n_cdf = n_tgt
+        n_draw = 1 + int(max(nee.mirrors.picks, nee.zones.picks, nee.organ_zones.picks))
+        n_slots = 3 * (n_tgt + tgt.picks) + 2 * OWN_SAMPLES * n_near + 2 * n_draw   # own events and picks (up to
+        n_cv = nee.control.row.shape[0]          # 3 deposits each, a mesh's own events 2 each), or image / zone events
     flush_start = scene.sensors.flush_start
     n_flush = int(np.max(np.diff(flush_start))) if flush_start.shape[0] > 1 else 0   # most sensors on a triangle
     photon = Photon(scratch, np.zeros(1, dtype=np.uint64), np.empty(n_bands), np.empty(n_bands), np.empty(n_bands),
-                    np.empty(n_slots, dtype=np.int64), np.empty((n_slots, n_bands)),
-                    np.empty(CAND_CAP + n_flush, dtype=np.int64))
+                    np.empty(n_bands), np.empty(n_slots, dtype=np.int64), np.empty((n_slots, n_bands)),
+                    np.empty(CAND_CAP + n_flush, dtype=np.int64), np.empty(max(1, n_cdf)))
     accum = Accumulator(np.zeros((n_rows, n_bands)), np.zeros(n_rows, dtype=np.uint8), np.empty(n_rows, dtype=np.int64),
                         np.empty(n_bands))
     cvw = ControlWork(np.zeros((n_bands, n_cv)), np.zeros((n_bands, n_cv)), np.zeros((n_bands, n_bands, n_cv)),
@@ -160,12 +166,13 @@ def trace_photons(scene, nee, seed, first, count, tallies, stats, photon, accum,
     args = scratch + ARGS
     cand_count = scratch + CAND_COUNT
     if nee is not None:
-        tgt, mir, zones, cv = nee
+        tgt, mir, zones, orgz, cv = nee
         sensor_target, receiver_target = tgt.sensor_target, tgt.receiver_target
         n_tgt = tgt.kind.shape[0]
         control = cv.on
         img_on = mir.picks > 0.0 and (tgt.on_sensors or tgt.on_receivers) and n_tgt > 0 and mir.plane.shape[0] > 0
         zone_on = zones.picks > 0.0 and tgt.on_sensors and zones.target_plane.shape[0] > 0 and 0 < tgt.picks < n_tgt
+        organ_on = orgz.picks > 0.0 and tgt.on_receivers and orgz.target.shape[0] > 0 and 0 < tgt.picks < n_tgt
         stat_planes = n_mat + tgt.from_emitter.shape[0]
 
     n_pass = mat.cum.shape[2]      # paths per photon: 1 (all bands on one), n_bands (analog), or band groups
@@ -194,6 +201,8 @@ def trace_photons(scene, nee, seed, first, count, tallies, stats, photon, accum,
         vertex = Vertex(ox, oy, oz, enx, eny, enz, emode, np.int64(0), oscale, np.int64(-1))
         stat = np.int64(n_mat + e)   # the vertex's row of nee_stats
         cover = np.int64(-1)         # the plane whose near discs zone events served (next_event's cover_pid)
+        organ_cover = -1.0           # the length² of the segment to an organ vertex whose own events organ zone
+                                     # events served (those of targets whose near radius is at most that long)
         near = np.int64(0)           # its triangle has near discs (control_deposits)
         room = max_depth > 0         # a further bounce is allowed (events through a mirror or a zone need one)
         on_surface = False
@@ -203,7 +212,8 @@ def trace_photons(scene, nee, seed, first, count, tallies, stats, photon, accum,
             if nee is not None and events:   # expected light of the segment leaving the vertex, if diffusely
                 if control:
                     control_deposits(vertex, w, near, mat, cv, cvw)
-                n_out = next_event(vertex, stat, cover, control, geo, mat, sens, tgt, zones, photon, stats)
+                n_out = next_event(vertex, stat, cover, organ_cover, control, geo, mat, sens, tgt, zones, photon,
+                                   stats)
                 nh = record_all(n_out, nh, photon, accum)
                 # and through a mirror (if not cut at that mirror); the call itself is not free: only if drawn
                 n_img = n_draws(mir.picks, state) if img_on and room else 0
@@ -213,6 +223,10 @@ def trace_photons(scene, nee, seed, first, count, tallies, stats, photon, accum,
                 n_zone = n_draws(zones.picks, state) if zone_on and room else 0
                 if n_zone > 0:     # and through one diffuse vertex beside a disc
                     n_out = zone_event(vertex, n_zone, geo, mat, sens, tgt, zones, photon, stats)
+                    nh = record_all(n_out, nh, photon, accum)
+                n_oz = n_draws(orgz.picks, state) if organ_on and room else 0
+                if n_oz > 0:       # and through one diffuse vertex on the organ surface beside an organ
+                    n_out = organ_zone_event(vertex, n_oz, stat, geo, mat, sens, tgt, orgz, photon, stats)
                     nh = record_all(n_out, nh, photon, accum)
             if on_surface:
                 # one event, drawn with probabilities q shared by the bands; weights carry the rest
@@ -372,6 +386,9 @@ def trace_photons(scene, nee, seed, first, count, tallies, stats, photon, accum,
                 events = n_tgt > 0 and tgt.from_material[m] != 0
             if nee is not None and events:
                 cover = np.int64(geo.plane_id[tri]) if zone_on and after_diffuse else np.int64(-1)
+                organ_cover = -1.0
+                if organ_on and after_diffuse and geo.plane_id[tri] < 0 and rec >= 0:
+                    organ_cover = (px - vx0) ** 2 + (py - vy0) ** 2 + (pz - vz0) ** 2
                 vertex = Vertex(px, py, pz, nx, ny, nz, V_SURFACE, m, pscale + oscale, tri)
                 stat = m
                 near = 1 if tgt.near_start[tri + 1] > tgt.near_start[tri] else 0

@@ -112,7 +112,9 @@ def test_targets_aim_shadow_rays_at_the_organs_that_matter(tmp_path):
     reported (NaN, empty cells), never a few-photon count passed off as their light."""
     scene = write_scene(tmp_path, ROOM)
     grey = {"reflectance": 0.3, "transmittance": 0.1}
-    organs = {1: (disc_mesh(60, z=400), grey, "Leaf"), 2: (disc_mesh(60, z=300, up=False), grey, "Stem")}
+    far = disc_mesh(60, z=700).apply_translation((250, 0, 0))
+    organs = {1: (disc_mesh(60, z=400), grey, "Leaf"), 2: (disc_mesh(60, z=300, up=False), grey, "Stem"),
+              3: (far, grey, "Leaf")}
     kw = dict(organs={"Leaf": grey, "Stem": grey}, lamp_flux=FLUX, plant_unit="mm", position=(500, 500, 0))
     aimed = LightModel(scene, photons=60_000, estimator="nee", nee_picks=1, targets=["Leaf"], **kw).intercept(organs)
     every = LightModel(scene, photons=60_000, estimator="nee", nee_picks=1, **kw).intercept(organs)
@@ -121,7 +123,7 @@ def test_targets_aim_shadow_rays_at_the_organs_that_matter(tmp_path):
     b, sb = counted[1].ppfd[0], counted[1].ppfd_std[0]
     assert abs(a - b) < 4 * math.hypot(sa, sb), (a, b, sa, sb)
     rel = lambda r, k: r[k].ppfd_std[0] / r[k].ppfd[0]
-    assert rel(every, 1) > 1.05 * rel(aimed, 1)      # the Leaf shares its shadow rays with the Stem there (1.11x)
+    assert rel(every, 1) > 1.05 * rel(aimed, 1)      # the Leaf shares its shadow rays with the Stem there (1.08x)
     assert aimed[2].role == "shading only" and every[2].role == "target" and aimed[1].role == "target"
     assert all(math.isnan(x) for x in (aimed[2].ppfd[0], aimed[2].ppfd_std[0], aimed[2].absorbed[0], aimed[2].par))
     assert every[2].ppfd[0] > 0

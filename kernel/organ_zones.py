@@ -1,0 +1,195 @@
+"""Organ zone events: two-step next events through the organ surface beside an organ target.
+
+A bud sits in the leaf axil against the stem; much of its far red is scattered to it by the stem and leaf
+base within a centimetre (green tissue reflects and transmits ~0.5 there, ~0.05 in the red), i.e. by the
+few photon vertices that land there, each making a large own next event (:func:`kernel.nee.next_event`).
+On the rose of ``lsystems/rose.lpy`` those own events carried ~40 % of a bud's far red and ~90 % of its
+variance.  The zone of an organ target t is the organ surface within its near radius (the triangles of the
+other organs where a vertex makes an own event for t, :func:`organ_zones`); from every next-event vertex v
+a point y of a random zone is drawn and the light that the segment leaving v would bring to t through y
+estimated (:func:`organ_zone_event`): the photon vertices that land there are replaced by an estimate from
+every vertex.  A photon that does land on a zone straight from a next-event vertex skips those own events
+(:func:`kernel.nee.next_event`, ``organ_cover``): every path is counted once, unbiased.
+
+Deposits in photons of weight, lengths in scene units, solid angles in steradians.
+"""
+import math
+
+import numpy as np
+
+from .jit import helper
+from .nee import target_event, view_factors
+
+ZONE_BY_AREA = 0.2    # the share of zone points drawn uniformly by area (the rest by solid angle seen from the target)
+from .embree import GEOM_ID, INVALID_ID, PRIM_ID, RAYHIT, ARGS
+from .ptr import call_ptr3, load_u32
+from .rays import magnitude, set_ray
+from .records import T_MESH2, V_ISOTROPIC, V_LAMBERT, V_SURFACE, OrganZones, Vertex
+from .rng import uniform
+from .sampling import search_cdf, spherical_triangle
+from .tallies import C_SHADOW
+
+
+def organ_zones(tri_verts, tri_receiver, tri_pid, near_start, near_list, near_r2, kind, ref, center):
+    """The zone of each organ target: the triangles of *other* organs within its near radius (where a vertex
+    makes an own next event for it, :func:`kernel.targets.near_discs`), with what :func:`organ_zone_event`
+    draws points by: their areas and the solid angles they subtend from the target's centre.
+
+    ``tri_verts`` (T, 3, 3), ``tri_receiver`` (T,), ``tri_pid`` (T,) plane ids: the organs' triangles are those
+    of a receiver without a plane (-1); ``near_*`` the targets' near lists and radii²; ``kind``, ``ref``,
+    ``center`` (n,) from :class:`~kernel.records.Targets`.  Returns :class:`~kernel.records.OrganZones`
+    (``picks`` 0: the caller's to set)."""
+    T = len(tri_verts)
+    tri_of = np.repeat(np.arange(T), np.diff(near_start))
+    t_of = np.asarray(near_list[:near_start[-1]], np.int64)
+    keep = ((tri_pid[tri_of] < 0) & (tri_receiver[tri_of] >= 0) & (np.asarray(kind)[t_of] >= T_MESH2)
+            & (np.asarray(near_r2)[t_of] > 0) & (tri_receiver[tri_of] != np.asarray(ref)[t_of]))
+    tri_of, t_of = tri_of[keep], t_of[keep]
+    order = np.lexsort((tri_of, t_of))
+    tri_of, t_of = tri_of[order], t_of[order]
+    v = tri_verts[tri_of]
+    area = 0.5 * np.linalg.norm(np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0]), axis=1)
+    angle = solid_angles(v - center[t_of][:, None, :])
+    targets, first = np.unique(t_of, return_index=True)
+    start = np.append(first, len(t_of)).astype(np.int64)
+    cdf_area, cdf_angle = np.zeros(len(t_of)), np.zeros(len(t_of))
+    total = np.zeros((len(targets), 2))
+    for z in range(len(targets)):
+        for x, cdf, col in ((area, cdf_area, 0), (angle, cdf_angle, 1)):
+            xz = x[start[z]:start[z + 1]]
+            total[z, col] = xz.sum()
+            c = np.cumsum(xz) / xz.sum() if xz.sum() > 0 else np.linspace(1, len(xz), len(xz)) / len(xz)
+            c[-1] = 1.0 + 1e-12
+            cdf[start[z]:start[z + 1]] = c
+    return OrganZones(0.0, np.ascontiguousarray(targets, np.int64), start, np.ascontiguousarray(tri_of, np.int64),
+                      cdf_area, cdf_angle, total)
+
+
+def solid_angles(v):
+    """Solid angles (sr) of triangles ``v`` (k, 3, 3) seen from the origin (Van Oosterom & Strackee 1983)."""
+    a, b, c = v[:, 0], v[:, 1], v[:, 2]
+    la, lb, lc = (np.linalg.norm(x, axis=1) for x in (a, b, c))
+    num = np.abs(np.einsum("ij,ij->i", a, np.cross(b, c)))
+    den = (la * lb * lc + np.einsum("ij,ij->i", a, b) * lc + np.einsum("ij,ij->i", a, c) * lb
+           + np.einsum("ij,ij->i", b, c) * la)
+    return 2.0 * np.arctan2(num, den)
+
+
+@helper
+def organ_zone_event(v, n_draw, stat, geo, mat, sens, tgt, oz, photon, stats):
+    """Two-step next events: the light that the segment leaving vertex ``v`` (:class:`~kernel.records.Vertex`)
+    brings to an organ target t *through one diffuse vertex y on the organ surface beside it*
+    (:func:`organ_zones`).
+
+    For ``n_draw`` draws (mean ``oz.picks``): a zone z (uniform over the Z zones) of target t; its triangle k
+    with probability P_k (``oz.cdf``) and y uniform on it: p_A(y) = P_k / A_k; the ray v → y must first meet
+    triangle k, y within t's near radius, whose side facing v is a material with next events; then from y
+    one own next event to t (:func:`kernel.nee.target_event`) for a photon of weights
+
+        w2_b = w_b · f_v,b(ω_vy) · |cos θ_y| / |y − v|² / p_A(y) · Z / picks,
+
+    f_v as in :func:`kernel.nee.next_event`: the expected own next event that a photon leaving v diffusely
+    would make at y, which a photon that does land there then skips.  Returns the new number of deposits
+    in ``photon.out_k`` / ``photon.out_w``.
+    """
+    vx, vy, vz, nx, ny, nz, mode, m, vscale, _vtri = v
+    w, w2 = photon.w, photon.w2
+    state, scratch = photon.state, photon.scratch
+    n_bands = w.shape[0]
+    n_zone = oz.target.shape[0]
+    if n_zone == 0 or n_draw <= 0 or not oz.picks > 0.0:
+        return 0
+    c0, c1 = view_factors(mode)
+    vmag = max(abs(vx), abs(vy), abs(vz), vscale)
+    rh = scratch + RAYHIT
+    n_out = 0
+    cdf = photon.cdf
+    total = 0.0
+    for z in range(n_zone):            # zones drawn ∝ 1 / max(d², R²): the solid angle of the zone seen from v
+        t = oz.target[z]
+        ex, ey, ez = vx - tgt.center[t, 0], vy - tgt.center[t, 1], vz - tgt.center[t, 2]
+        total += 1.0 / max(ex * ex + ey * ey + ez * ez, tgt.near_r2[t])
+        cdf[z] = total
+    for _ in range(n_draw):
+        z = search_cdf(cdf, 0, n_zone - 1, uniform(state) * total)
+        p_z = (cdf[z] - (cdf[z - 1] if z > 0 else 0.0)) / total
+        if not p_z > 0.0:
+            continue
+        u0, u1, u2, u3 = uniform(state), uniform(state), uniform(state), uniform(state)
+        t = oz.target[z]
+        cx, cy, cz = tgt.center[t, 0], tgt.center[t, 1], tgt.center[t, 2]
+        by_angle = u0 >= ZONE_BY_AREA and oz.total[z, 1] > 0.0
+        i = search_cdf(oz.cdf_angle if by_angle else oz.cdf_area, oz.start[z], oz.start[z + 1] - 1, u3)
+        k = oz.tri[i]
+        a = geo.verts[k]
+        kx, ky, kz = geo.normal[k, 0], geo.normal[k, 1], geo.normal[k, 2]
+        if by_angle:          # a direction from the target's centre uniform in the triangle's solid angle
+            sx, sy, sz, om = spherical_triangle(cx, cy, cz, a[0], a[1], a[2], u1, u2)
+            den = sx * kx + sy * ky + sz * kz
+            if om == 0.0 or den == 0.0:
+                continue
+            tt = ((a[0, 0] - cx) * kx + (a[0, 1] - cy) * ky + (a[0, 2] - cz) * kz) / den
+            if not tt > 0.0:
+                continue
+            yx, yy, yz = cx + tt * sx, cy + tt * sy, cz + tt * sz
+        else:                 # a point uniform on the triangle
+            su = math.sqrt(u1)
+            b0, b1 = 1.0 - su, u2 * su
+            b2 = 1.0 - b0 - b1
+            yx = b0 * a[0, 0] + b1 * a[1, 0] + b2 * a[2, 0]
+            yy = b0 * a[0, 1] + b1 * a[1, 1] + b2 * a[2, 1]
+            yz = b0 * a[0, 2] + b1 * a[1, 2] + b2 * a[2, 2]
+        ex, ey, ez = yx - cx, yy - cy, yz - cz
+        d2c = ex * ex + ey * ey + ez * ez
+        if not (d2c < tgt.near_r2[t] and d2c > 0.0):
+            continue                                   # outside the zone (a photon there makes a pick instead)
+        # the density of y on the zone's surface: the mixture of both ways of drawing it
+        cos_c = abs(ex * kx + ey * ky + ez * kz) / math.sqrt(d2c)
+        p_a = ZONE_BY_AREA / oz.total[z, 0] + (1.0 - ZONE_BY_AREA) * (
+            cos_c / (d2c * oz.total[z, 1]) if oz.total[z, 1] > 0.0 else 0.0)
+        dx, dy, dz = yx - vx, yy - vy, yz - vz
+        dist2 = dx * dx + dy * dy + dz * dz
+        if not (dist2 > 0.0 and p_a > 0.0):
+            continue
+        if dist2 < tgt.near_r2[t]:
+            continue                                   # a short leg (1/d², heavy-tailed): left to the own events
+        dist = math.sqrt(dist2)
+        dx, dy, dz = dx / dist, dy / dist, dz / dist
+        cos_v = dx * nx + dy * ny + dz * nz
+        if mode == V_LAMBERT and cos_v <= 0.0:
+            continue
+        cos_in = dx * kx + dy * ky + dz * kz
+        if cos_in > 0.0:                               # met from its back: the back's material, normal towards v
+            m_y = geo.material[k, 1]
+            kx, ky, kz = -kx, -ky, -kz
+        else:
+            m_y = geo.material[k, 0]
+            cos_in = -cos_in
+        if tgt.from_material[m_y] == 0:
+            continue                                   # no next events from y's material: its crossings count
+        side = 0.0 if mode == V_ISOTROPIC else (1.0 if cos_v > 0.0 else -1.0)
+        ymag = magnitude(a)
+        eps = geo.offset_rel * (vmag + ymag)
+        # the first leg: what a photon leaving v towards y meets first (past y by a little: Embree's float32)
+        set_ray(scratch, vx + side * eps * nx, vy + side * eps * ny, vz + side * eps * nz, dx, dy, dz,
+                dist * (1.0 + 2.0 ** -10) + 4.0 * eps)
+        stats.counters[C_SHADOW] += 1
+        call_ptr3(geo.intersect, geo.scene, rh, scratch + ARGS)
+        gid = load_u32(rh + GEOM_ID)
+        if gid == INVALID_ID or load_u32(rh + PRIM_ID) + geo.geom_offset[gid] != k:
+            continue                                   # something else first: no such vertex y
+        arrive = cos_in / dist2 / (p_a * p_z * oz.picks)   # vertex density at y / p_A(y) / (p_z · picks)
+        any_light = False
+        for b in range(n_bands):
+            fv = c0 + c1 * abs(cos_v)
+            if mode == V_SURFACE:
+                fv *= mat.prob[m, 0 if cos_v > 0.0 else 2, b]
+            w2[b] = w[b] * fv * arrive
+            any_light = any_light or w2[b] > 0.0
+        if not any_light:
+            continue
+        u4, u5, u6 = uniform(state), uniform(state), uniform(state)
+        y = Vertex(yx, yy, yz, kx, ky, kz, V_SURFACE, np.int64(m_y), ymag + vmag, k)
+        n_out = target_event(y, max(abs(yx), abs(yy), abs(yz), ymag + vmag), t, d2c, 1.0, w2, u4, u5, u6, stat,
+                             geo, mat, sens, tgt, photon, stats, n_out)
+    return n_out
