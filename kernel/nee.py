@@ -40,7 +40,7 @@ of waiting for a photon to cross it: those crossings, counted, held nearly all
 of a rose leaf's and bud's variance (a bud's PAR spread 10-29 % over seeds at 1e6
 photons with a reported σ of 1-2 %; now 2-6 %, as reported).
 Organ targets (the receivers a plant's rules read) are picked in proportion to their importance seen from
-the vertex, ~1 / max(d², a²) (:func:`importance_cdf`), not uniformly: a bud then gets its picks from the leaf
+the vertex, ~1 / max(d², a²) (:mod:`kernel.importance`), not uniformly: a bud then gets its picks from the leaf
 above it rather than from across the chamber.  An organ's own events (from vertices within its near radius)
 are each the mean of :data:`OWN_SAMPLES`, and those at vertices on other organs reached straight from a
 next-event vertex are replaced by two-step events from every vertex (:mod:`kernel.organ_zones`).
@@ -62,6 +62,7 @@ import math
 
 import numpy as np
 
+from .importance import cluster_cdf, draw
 from .jit import helper
 from .rays import seen_share
 from .records import (ABSORB, DIFFUSE_R, DIFFUSE_T, T_DISC, T_MESH1, T_MESH2, T_QUAD, V_ISOTROPIC,  # noqa: F401
@@ -81,9 +82,9 @@ FAR = 10.0      # discs farther than FAR radii: points drawn by area
 NEAR_PICKED = 1.0    # discs nearer than this · radius · √(targets) get their own next event (kernel.targets.near_discs)
 NEAR_FLOOR = 2.0     # ... and always those nearer than this · radius (kernel.targets.near_discs)
 MESH_OWN = 2.0       # organs always get their own next event from within this · their bounding radius (kernel.targets)
-OWN_SAMPLES = 8      # an organ's own next event is the mean of this many: the near light of a bud (the stem and
-                     # leaf it touches) varies much over the bud's surface, and near vertices are few
-                     # (rose, 13 buds, 1e6 photons: far-red spread over seeds 29 % -> 17 %, at no measurable cost)
+OWN_SAMPLES = 2      # an organ's own next event is the mean of this many: the near light of a bud (the stem and
+                     # leaf it touches) varies much over the bud's surface (rose at step 14, 1e6 photons, before
+                     # organ zones: buds' far-red spread over seeds 29 % with 1, 17 % with 8; with them, 2 ≈ 8)
 ZONE_HEIGHT = 4.0    # a disc whose centre is nearer to a plane than this · its radius gets a zone on it
 INV_4PI = 1.0 / (4.0 * math.pi)
 
@@ -337,9 +338,11 @@ def next_event(v, stat, cover_pid, organ_cover, control, geo, mat, sens, tgt, zo
         n_iter, scale = n_tgt, 1.0
     n_near = near_start[vtri + 1] - near_start[vtri] if scale != 1.0 and vtri >= 0 else 0
     by_importance = scale != 1.0 and tgt.weight.shape[0] == n_tgt
+    vpos = (vx, vy, vz)
     total = 0.0
-    if by_importance:
-        total = importance_cdf(v, n_near > 0, tgt, photon.cdf)
+    if by_importance:          # importances of the targets not served by an own event here
+        total = cluster_cdf(vpos, tgt.weight, tgt.img_near2, NEAR * NEAR, n_near > 0, tgt.cluster_weight, tgt,
+                            photon.cdf, photon.exact)
         if not total > 0.0:
             n_iter = 0
     for j in range(n_near + n_iter):
@@ -347,9 +350,9 @@ def next_event(v, stat, cover_pid, organ_cover, control, geo, mat, sens, tgt, zo
             t = tgt.near_list[near_start[vtri] + j]
             tscale = 1.0
         elif by_importance:       # a pick in proportion to the target's importance seen from v
-            t = search_cdf(photon.cdf, 0, n_tgt - 1, uniform(state) * total)
-            p_t = (photon.cdf[t] - (photon.cdf[t - 1] if t > 0 else 0.0)) / total
-            if not p_t > 0.0:
+            t, p_t = draw(uniform(state), uniform(state), total, vpos, tgt.weight, tgt.img_near2, NEAR * NEAR,
+                          n_near > 0, tgt, photon.cdf, photon.exact)
+            if t < 0:
                 continue
             tscale = 1.0 / (n_iter * p_t)
         else:
@@ -384,27 +387,6 @@ def next_event(v, stat, cover_pid, organ_cover, control, geo, mat, sens, tgt, zo
                 n_out += 1
         n_out = target_event(v, vmag, t, d2c, tscale, w, u1, u2, u3, stat, geo, mat, sens, tgt, photon, stats, n_out)
     return n_out
-
-
-@helper
-def importance_cdf(v, has_near, tgt, cdf):
-    """Cumulative importances of the targets for the picks of vertex ``v`` into ``cdf`` (n,); returns their sum.
-
-    Target t's importance is ``tgt.weight[t] / max(d², a²)`` (d from v to its centre, a its bounding radius):
-    about the solid angle it subtends per unit of its area, i.e. its share of v's light relative to its own
-    total, so that each target's picks come from the vertices that light it most.  (Uniform picks gave a
-    bud as few picks from a vertex on the leaf above it as from one across the chamber, each deposit then
-    scaled by n / picks: a heavy tail.)  Zero for targets served by an own event at v (``has_near`` and v
-    within their near radius: v's own organ always is)."""
-    vx, vy, vz = v.x, v.y, v.z
-    total = 0.0
-    for t in range(tgt.kind.shape[0]):
-        ex, ey, ez = vx - tgt.center[t, 0], vy - tgt.center[t, 1], vz - tgt.center[t, 2]
-        d2 = ex * ex + ey * ey + ez * ez
-        if not (has_near and d2 < tgt.near_r2[t]):
-            total += tgt.weight[t] / max(d2, tgt.img_near2[t] * (1.0 / (NEAR * NEAR)))
-        cdf[t] = total
-    return total
 
 
 @helper

@@ -17,6 +17,7 @@ import math
 
 import numpy as np
 
+from .importance import cluster_cdf, draw
 from .jit import helper
 from .nee import target_event, view_factors
 
@@ -30,15 +31,15 @@ from .sampling import search_cdf, spherical_triangle
 from .tallies import C_SHADOW
 
 
-def organ_zones(tri_verts, tri_receiver, tri_pid, near_start, near_list, near_r2, kind, ref, center):
+def organ_zones(tri_verts, tri_receiver, tri_pid, near_start, near_list, near_r2, kind, ref, center, clusters):
     """The zone of each organ target: the triangles of *other* organs within its near radius (where a vertex
     makes an own next event for it, :func:`kernel.targets.near_discs`), with what :func:`organ_zone_event`
     draws points by: their areas and the solid angles they subtend from the target's centre.
 
     ``tri_verts`` (T, 3, 3), ``tri_receiver`` (T,), ``tri_pid`` (T,) plane ids: the organs' triangles are those
     of a receiver without a plane (-1); ``near_*`` the targets' near lists and radii²; ``kind``, ``ref``,
-    ``center`` (n,) from :class:`~kernel.records.Targets`.  Returns :class:`~kernel.records.OrganZones`
-    (``picks`` 0: the caller's to set)."""
+    ``center`` (n,) from :class:`~kernel.records.Targets`, and its ``clusters`` ``(cluster_start, cluster_member)``.
+    Returns :class:`~kernel.records.OrganZones` (``picks`` 0: the caller's to set)."""
     T = len(tri_verts)
     tri_of = np.repeat(np.arange(T), np.diff(near_start))
     t_of = np.asarray(near_list[:near_start[-1]], np.int64)
@@ -61,8 +62,13 @@ def organ_zones(tri_verts, tri_receiver, tri_pid, near_start, near_list, near_r2
             c = np.cumsum(xz) / xz.sum() if xz.sum() > 0 else np.linspace(1, len(xz), len(xz)) / len(xz)
             c[-1] = 1.0 + 1e-12
             cdf[start[z]:start[z + 1]] = c
+    zone_of = np.full(len(kind), -1, np.int64)
+    zone_of[targets] = np.arange(len(targets))
+    weight = (zone_of >= 0).astype(np.float64)
+    cluster_start, cluster_member = clusters
+    cluster_weight = np.array([weight[cluster_member[a:b]].sum() for a, b in zip(cluster_start[:-1], cluster_start[1:])])
     return OrganZones(0.0, np.ascontiguousarray(targets, np.int64), start, np.ascontiguousarray(tri_of, np.int64),
-                      cdf_area, cdf_angle, total)
+                      cdf_area, cdf_angle, total, zone_of, weight, np.ascontiguousarray(cluster_weight, np.float64))
 
 
 def solid_angles(v):
@@ -81,12 +87,13 @@ def organ_zone_event(v, n_draw, stat, geo, mat, sens, tgt, oz, photon, stats):
     brings to an organ target t *through one diffuse vertex y on the organ surface beside it*
     (:func:`organ_zones`).
 
-    For ``n_draw`` draws (mean ``oz.picks``): a zone z (uniform over the Z zones) of target t; its triangle k
+    For ``n_draw`` draws (mean ``oz.picks``): a zone z of target t, drawn with probability p_z ∝ 1 / max(d², R²)
+    (:mod:`kernel.importance`); its triangle k
     with probability P_k (``oz.cdf``) and y uniform on it: p_A(y) = P_k / A_k; the ray v → y must first meet
     triangle k, y within t's near radius, whose side facing v is a material with next events; then from y
     one own next event to t (:func:`kernel.nee.target_event`) for a photon of weights
 
-        w2_b = w_b · f_v,b(ω_vy) · |cos θ_y| / |y − v|² / p_A(y) · Z / picks,
+        w2_b = w_b · f_v,b(ω_vy) · |cos θ_y| / |y − v|² / (p_A(y) · p_z · picks),
 
     f_v as in :func:`kernel.nee.next_event`: the expected own next event that a photon leaving v diffusely
     would make at y, which a photon that does land there then skips.  Returns the new number of deposits
@@ -103,20 +110,18 @@ def organ_zone_event(v, n_draw, stat, geo, mat, sens, tgt, oz, photon, stats):
     vmag = max(abs(vx), abs(vy), abs(vz), vscale)
     rh = scratch + RAYHIT
     n_out = 0
-    cdf = photon.cdf
-    total = 0.0
-    for z in range(n_zone):            # zones drawn ∝ 1 / max(d², R²): the solid angle of the zone seen from v
-        t = oz.target[z]
-        ex, ey, ez = vx - tgt.center[t, 0], vy - tgt.center[t, 1], vz - tgt.center[t, 2]
-        total += 1.0 / max(ex * ex + ey * ey + ez * ez, tgt.near_r2[t])
-        cdf[z] = total
+    # zones drawn ∝ 1 / max(d², R²) (R the zone's radius): about the solid angle of the zone seen from v
+    vpos = (vx, vy, vz)
+    total = cluster_cdf(vpos, oz.weight, tgt.near_r2, 1.0, False, oz.cluster_weight, tgt, photon.cdf, photon.exact)
+    if not total > 0.0:
+        return 0
     for _ in range(n_draw):
-        z = search_cdf(cdf, 0, n_zone - 1, uniform(state) * total)
-        p_z = (cdf[z] - (cdf[z - 1] if z > 0 else 0.0)) / total
-        if not p_z > 0.0:
+        t, p_z = draw(uniform(state), uniform(state), total, vpos, oz.weight, tgt.near_r2, 1.0, False, tgt,
+                      photon.cdf, photon.exact)
+        if t < 0:
             continue
+        z = oz.zone_of[t]
         u0, u1, u2, u3 = uniform(state), uniform(state), uniform(state), uniform(state)
-        t = oz.target[z]
         cx, cy, cz = tgt.center[t, 0], tgt.center[t, 1], tgt.center[t, 2]
         by_angle = u0 >= ZONE_BY_AREA and oz.total[z, 1] > 0.0
         i = search_cdf(oz.cdf_angle if by_angle else oz.cdf_area, oz.start[z], oz.start[z + 1] - 1, u3)

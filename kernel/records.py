@@ -107,6 +107,11 @@ Targets = namedtuple("Targets", [
     "near_r2",       # (n,) float64: their near radius²
     "weight",        # (n,) float64: picks drawn by importance, weight[t] / max(d², a²) (d from the vertex to t's
                      # centre, a its bounding radius), or empty: picks drawn uniformly
+    "cluster_start",  # (K + 1,) int64: the targets in clusters (kernel.targets.target_clusters), cluster k's
+    "cluster_member",  # (n,) int64: cluster_member[cluster_start[k] : cluster_start[k + 1]]
+    "cluster_center",  # (K, 3) float64: a cluster's centre and
+    "cluster_radius",  # (K,) float64: the radius of a sphere holding its targets' bounding spheres
+    "cluster_weight",  # (K,) float64: the sum of its targets' weights
     "sensor_target",  # (S,) int64: each sensor's target, or -1
     "receiver_target",  # (R,) int64: each receiver's target, or -1
 ])
@@ -139,6 +144,9 @@ OrganZones = namedtuple("OrganZones", [
     "cdf_area",      # float64: their cumulative areas within each zone (ending at 1), or by
     "cdf_angle",     # float64: their cumulative solid angles seen from the target's centre (ending at 1)
     "total",         # (Z, 2) float64: each zone's area and solid angle (sr) seen from its target's centre
+    "zone_of",       # (n,) int64: each target's zone, or -1
+    "weight",        # (n,) float64: 1 for the targets that have a zone, 0 for the others
+    "cluster_weight",  # (K,) float64: the number of zones in each target cluster (Targets.cluster_*)
 ])
 
 Control = namedtuple("Control", [
@@ -184,7 +192,9 @@ Photon = namedtuple("Photon", [
     "out_k",         # int64: tally rows of a vertex's next-event deposits, and
     "out_w",         # (., B) float64: the deposits
     "seen",          # int64: sensors already tested on the current segment
-    "cdf",           # (n,) float64: the targets' cumulative importances at a vertex (kernel.nee.importance_cdf)
+    "cdf",           # (n + K,) float64: cumulative importances at a vertex: of the targets within each cluster
+                     # (by position in Targets.cluster_member), then of the K clusters (kernel.nee.pick_by_importance)
+    "exact",         # (K,) uint8: the clusters whose targets' importances were summed at this vertex
 ])
 
 Accumulator = namedtuple("Accumulator", [

@@ -115,12 +115,12 @@ def work_arrays(scene, nee, scratch, tallies):
     mat = scene.materials
     n_bands = mat.prob.shape[2]
     n_rows = tallies.tally.shape[0]
-    n_slots, n_cv, n_cdf = 1, 0, 0
+    n_slots, n_cv, n_cdf, n_clusters = 1, 0, 0, 0
     if nee is not None:
         tgt = nee.targets
         n_tgt = tgt.kind.shape[0]
         n_near = int(np.max(np.diff(tgt.near_start))) if tgt.near_start.shape[0] > 1 else 0
-        n_cdf = n_tgt
+        n_cdf, n_clusters = n_tgt, tgt.cluster_radius.shape[0]
         n_draw = 1 + int(max(nee.mirrors.picks, nee.zones.picks, nee.organ_zones.picks))
         n_slots = 3 * (n_tgt + tgt.picks) + 2 * OWN_SAMPLES * n_near + 2 * n_draw   # own events and picks (up to
         n_cv = nee.control.row.shape[0]          # 3 deposits each, a mesh's own events 2 each), or image / zone events
@@ -128,7 +128,8 @@ def work_arrays(scene, nee, scratch, tallies):
     n_flush = int(np.max(np.diff(flush_start))) if flush_start.shape[0] > 1 else 0   # most sensors on a triangle
     photon = Photon(scratch, np.zeros(1, dtype=np.uint64), np.empty(n_bands), np.empty(n_bands), np.empty(n_bands),
                     np.empty(n_bands), np.empty(n_slots, dtype=np.int64), np.empty((n_slots, n_bands)),
-                    np.empty(CAND_CAP + n_flush, dtype=np.int64), np.empty(max(1, n_cdf)))
+                    np.empty(CAND_CAP + n_flush, dtype=np.int64), np.empty(max(1, n_cdf + n_clusters)),
+                    np.zeros(max(1, n_clusters), dtype=np.uint8))
     accum = Accumulator(np.zeros((n_rows, n_bands)), np.zeros(n_rows, dtype=np.uint8), np.empty(n_rows, dtype=np.int64),
                         np.empty(n_bands))
     cvw = ControlWork(np.zeros((n_bands, n_cv)), np.zeros((n_bands, n_cv)), np.zeros((n_bands, n_bands, n_cv)),

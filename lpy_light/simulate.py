@@ -365,10 +365,12 @@ class KernelScene:
         # zones of organ surface beside organ targets for two-step next events (with random picks, as own events)
         if self.nee_receivers and 0 < self.nee_picks < n_tgt:
             self.organ_zones = organ_zones(self.tri_verts, self.tri_receiver, self.tri_pid, tgt.near_start,
-                                           tgt.near_list, tgt.near_r2, tgt.kind, tgt.ref, tgt.center)
+                                           tgt.near_list, tgt.near_r2, tgt.kind, tgt.ref, tgt.center,
+                                           (tgt.cluster_start, tgt.cluster_member))
         else:
             self.organ_zones = OrganZones(0.0, np.zeros(0, np.int64), np.zeros(1, np.int64), np.zeros(0, np.int64),
-                                          np.zeros(0), np.zeros(0), np.zeros((0, 2)))
+                                          np.zeros(0), np.zeros(0), np.zeros((0, 2)), np.full(n_tgt, -1, np.int64),
+                                          np.zeros(n_tgt), np.zeros(len(tgt.cluster_radius)))
 
     def prune_next_events(self, photons: int = 8192, max_share: float = 0.0, seed: int = 987654321,
                           threads=None, min_plane_share: float = 0.01, min_rays: int = 256, keep=()) -> dict:
@@ -500,7 +502,11 @@ class KernelScene:
         materials = Materials(f64(self.mat_prob), f64(self.mat_cum), i64(self.band_pass), f64(self.mat_phong),
                               self.estimator != "analog", int(phys.max_depth))
         by_importance = self.nee_importance and self.nee_receivers and not self.nee_sensors
-        targets = self.targets._replace(weight=np.ones(len(self.targets.kind)) if by_importance else np.zeros(0))
+        tgt = self.targets
+        weight = np.ones(len(tgt.kind)) if by_importance else np.zeros(0)
+        cluster_weight = (np.array([weight[tgt.cluster_member[a:b]].sum() for a, b in
+                                    zip(tgt.cluster_start[:-1], tgt.cluster_start[1:])]) if by_importance else np.zeros(0))
+        targets = tgt._replace(weight=weight, cluster_weight=f64(cluster_weight))
         targets = targets._replace(on_sensors=bool(self.nee_sensors), on_receivers=bool(self.nee_receivers),
                                         picks=int(self.nee_picks), from_material=u8(self.mat_nee),
                                         from_emitter=u8(self.emit_nee))

@@ -130,20 +130,20 @@ def cases(tmp: Path) -> dict:
 # with mesh targets (the room's solid sensor, the rose) with mesh targets' own next events near them; then all
 # of them with Embree's code path capped at AVX2 (``kernel.embree.DEVICE_CONFIG``): before, an AVX-512 machine
 # and an AVX2 one gave different digests for the same code (the rose's differed between this project's machines);
-# then the nee cases with mesh targets with organs' own events averaged over 8 samples, picks among organs by
-# importance and organ zone events (issue 24): Angers unchanged
+# then the nee cases with mesh targets with organs' own events averaged over 2 samples, picks among organs by
+# importance over clusters and organ zone events (issue 24): Angers unchanged
 PINNED = {
     "angers-weighted": "5b880b19bca006d238e3918ea965cc5ada7a727bb738cfbc354761ae687b9b81",
     "angers-nee": "3ffe0840d0168ce8834b4c1c71d6ea64ceb87481552907c1433d9f509cfc828b",
     "angers-analog": "42755ef2f42771a1914394682bdc4faa00ac2ff8f63b741203b172f7811dec57",
     "angers-12bands-nee": "d0ad9cfe3706c22b070ec8f33566712797c0d7f8f1b4e68cae72cea3c425e9d6",
     "angers-12bands-analog": "a24c0e3a3c84f50ed8cacba5f951b418a0bc495c9359bb2ee92a5f37ffab2342",
-    "room-line-nee": "2729ec8781b327b4ea7a52fccd0e38dfb9d3b088e1406fb2a51bd34fa1b622f6",
+    "room-line-nee": "3fdd70638641a275b9babdec39c97ebdc56758caaee588755db614315ecf264b",
     "room-line-nee-all": "135b704597c10417a262797c771c0523bd7de5703f7bcb74c0be255c7d3c97d1",
     "room-line-weighted": "c7d42d71b5c767043f1e8ec90838e2f94856d9283c8c561cd7be56c0fa3a5a6b",
-    "room-lambertian-nee": "3b8cec13232154ba80ccc730fb48ec900d91ee045f57bb3fc18087134dd3a0d4",
+    "room-lambertian-nee": "dd12af7cbbbfac8ad4bcdc87cfd3a4f252703757db83e628fd737a2da2776b93",
     "room-lambertian-analog": "22c08b31f224eb5c161b766a925e443d33ca195c3ccb7f1120776b4a908fcb42",
-    "rose-nee": "543b65c9fb5d48dea512fa865ccd5e9044985800fc3f13e3ebaf4d51b7e48ef0",
+    "rose-nee": "be662e5ca8dfc2c72a92d3c7b57b29ef929083d4c95068c31289af2165194d23",
 }
 
 

@@ -11,9 +11,9 @@ import pytest
 import trimesh
 
 from lpy_light import simulate
-from lpy_light.kernel.nee import importance_cdf
+from lpy_light.kernel.importance import cluster_cdf, draw
 from lpy_light.kernel.organ_zones import solid_angles
-from lpy_light.kernel.records import T_MESH2, Vertex, V_SURFACE
+from lpy_light.kernel.records import T_MESH2
 from lpy_light.kernel.sampling import triangle_solid_angle
 from lpy_light.light import LightModel
 from scenes import box, rad_polygon, write_scene
@@ -75,8 +75,9 @@ def test_importance_picks_are_unbiased(pocket):
 
 
 def test_importance_picks_favour_the_targets_beside_a_vertex(pocket):
-    """Seen from a point of the leaf 30 mm from the bud (outside its near radius), the bud is worth ~30x a far
-    bud; the leaf's own organ and a bud whose near radius covers the point are served by own events: 0."""
+    """Seen from a point of the leaf 30 mm from the bud (outside its near radius), the bud is drawn ~30x as
+    often as a far bud; the leaf itself (a vertex on it is within its near radius) is never drawn; the
+    probabilities the draws report are their frequencies (χ²)."""
     scene, organs = pocket
     model = LightModel(scene, organs={"Bud": GREEN, "Leaf": THIN}, lamp_flux=100.0, plant_unit="mm",
                        position=(500, 500, 0), photons=1, targets=None)
@@ -85,19 +86,28 @@ def test_importance_picks_favour_the_targets_beside_a_vertex(pocket):
     ks.set_organs(model.organs_from_meshes(organs), model.materials)
     (_, nee) = ks.records()
     tgt = nee.targets
-    assert tgt.weight.shape == (51,)                      # organs only: picks by importance
+    n, k = len(tgt.kind), len(tgt.cluster_radius)
+    assert tgt.weight.shape == (n,) and 1 < k < n          # organs only: picks by importance, over clusters
     bud, leaf = tgt.receiver_target[0], tgt.receiver_target[1]
-    cdf = np.zeros(51)
-    v = Vertex(530.0, 500.0, 260.0, 0.0, 0.0, -1.0, V_SURFACE, np.int64(0), 1000.0, np.int64(-1))
-    total = importance_cdf(v, True, tgt, cdf)
-    p = np.diff(np.r_[0.0, cdf]) / total
-    assert p[leaf] == 0.0                                 # the leaf's near radius covers its own surface
-    far = [t for t in range(51) if t not in (bud, leaf)]
-    assert p[bud] > 10 * np.max(p[far]), (p[bud], np.max(p[far]))
-    assert p.sum() == pytest.approx(1.0)
-    # without own events (a vertex with no near list) the leaf is picked too
-    total = importance_cdf(v, False, tgt, cdf)
-    assert np.diff(np.r_[0.0, cdf])[leaf] > 0.0
+    cdf, exact = np.zeros(n + k), np.zeros(k, np.uint8)
+    v = (530.0, 500.0, 260.0)
+    args = (v, tgt.weight, tgt.img_near2, 9.0, True)
+    total = cluster_cdf(*args, tgt.cluster_weight, tgt, cdf, exact)
+    rng = np.random.default_rng(3)
+    counts, prob = np.zeros(n), np.full(n, np.nan)
+    for u1, u2 in rng.random((20000, 2)):
+        t, p = draw(u1, u2, total, *args, tgt, cdf, exact)
+        counts[t] += 1
+        assert np.isnan(prob[t]) or prob[t] == pytest.approx(p, rel=1e-12)
+        prob[t] = p
+    assert counts[leaf] == 0
+    far = [t for t in range(n) if t not in (bud, leaf)]
+    assert counts[bud] > 10 * counts[far].max(), (counts[bud], counts[far].max())
+    drawn = counts > 0
+    assert prob[drawn].sum() == pytest.approx(1.0, abs=1e-9)
+    expected = 20000 * prob[drawn]
+    chi2 = ((counts[drawn] - expected) ** 2 / expected).sum()
+    assert chi2 < drawn.sum() + 5 * math.sqrt(2 * drawn.sum()), chi2
 
 
 def test_zones_are_the_other_organs_surface_within_the_near_radius(pocket):

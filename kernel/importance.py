@@ -1,0 +1,80 @@
+"""Targets drawn by importance as seen from a vertex, over clusters of targets.
+
+A next event from vertex v picks a few of the n targets (:func:`kernel.nee.next_event`); drawn uniformly, a bud
+gets as few picks from the leaf right above it as from a wall across the chamber, and each deposit is scaled
+by n / picks: rare, large deposits.  Drawn in proportion to an importance I_t = weight_t / max(d², a²)
+(d from v to t's centre, a a floor radius) -- about the solid angle t subtends per unit of its area, i.e. its
+share of v's light relative to its own total -- each target's picks come from the vertices that light it
+most.  Summing I_t over all n targets at every vertex would cost O(n) (a canopy holds thousands of organs),
+so targets are grouped in clusters (:func:`kernel.targets.target_clusters`, ~√n of ~√n targets): a cluster
+farther than :data:`CLUSTER_NEAR` of its radii from v counts as its total weight / d², a nearer one as the
+exact sum of its targets'; a pick draws a cluster, then one of its targets by their exact importances.  The
+probability of the target drawn is known exactly either way, and the deposit is divided by it: unbiased.
+
+Lengths in scene units; importances in 1 / length² (only their ratios matter).
+"""
+from .jit import helper
+from .sampling import search_cdf
+
+CLUSTER_NEAR = 2.0   # within this many of its radii from a cluster's centre, its targets' importances are summed
+
+
+@helper
+def _importance(t, v, weight, floor2, scale, excl, tgt):
+    """Target t's importance from point v: ``weight[t] / max(scale · d², floor2[t])``, 0 if ``excl`` and v is
+    within t's near radius (``tgt.near_r2``: served by an own event)."""
+    ex, ey, ez = v[0] - tgt.center[t, 0], v[1] - tgt.center[t, 1], v[2] - tgt.center[t, 2]
+    d2 = ex * ex + ey * ey + ez * ez
+    if excl and d2 < tgt.near_r2[t]:
+        return 0.0
+    return weight[t] / max(scale * d2, floor2[t])
+
+
+@helper
+def cluster_cdf(v, weight, floor2, scale, excl, cluster_weight, tgt, cdf, exact):
+    """Cumulative importances of the clusters seen from v into ``cdf[n : n + K]`` (n targets, K clusters);
+    returns their sum.  A cluster within :data:`CLUSTER_NEAR` radii of v counts the exact sum of its targets'
+    importances (:func:`_importance`, cumulated into ``cdf`` at their positions in ``tgt.cluster_member``;
+    ``exact[k]`` = 1), a farther one ``cluster_weight[k] / (scale · d²)`` (``exact[k]`` = 0)."""
+    n = tgt.kind.shape[0]
+    start, member = tgt.cluster_start, tgt.cluster_member
+    total = 0.0
+    for k in range(tgt.cluster_radius.shape[0]):
+        ex, ey, ez = v[0] - tgt.cluster_center[k, 0], v[1] - tgt.cluster_center[k, 1], v[2] - tgt.cluster_center[k, 2]
+        d2 = ex * ex + ey * ey + ez * ez
+        r = CLUSTER_NEAR * tgt.cluster_radius[k]
+        if d2 < r * r:
+            s = 0.0
+            for j in range(start[k], start[k + 1]):
+                s += _importance(member[j], v, weight, floor2, scale, excl, tgt)
+                cdf[j] = s
+            exact[k] = 1
+        else:
+            s = cluster_weight[k] / (scale * d2)
+            exact[k] = 0
+        total += s
+        cdf[n + k] = total
+    return total
+
+
+@helper
+def draw(u1, u2, total, v, weight, floor2, scale, excl, tgt, cdf, exact):
+    """One target drawn from the importances :func:`cluster_cdf` left in ``cdf`` (their sum ``total``), from two
+    uniforms: ``(t, probability)``; (-1, 0) if the cluster drawn has no target of positive importance."""
+    n = tgt.kind.shape[0]
+    n_clusters = tgt.cluster_radius.shape[0]
+    k = search_cdf(cdf, n, n + n_clusters - 1, u1 * total) - n
+    p_k = (cdf[n + k] - (cdf[n + k - 1] if k > 0 else 0.0)) / total
+    a, b = tgt.cluster_start[k], tgt.cluster_start[k + 1]
+    if exact[k] == 0:          # its targets' importances, now (kept for the vertex's other picks)
+        s = 0.0
+        for j in range(a, b):
+            s += _importance(tgt.cluster_member[j], v, weight, floor2, scale, excl, tgt)
+            cdf[j] = s
+        exact[k] = 1
+    s = cdf[b - 1]
+    if not (s > 0.0 and p_k > 0.0):
+        return -1, 0.0
+    j = search_cdf(cdf, a, b - 1, u2 * s)
+    p_t = (cdf[j] - (cdf[j - 1] if j > a else 0.0)) / s
+    return tgt.cluster_member[j], p_k * p_t
