@@ -16,7 +16,8 @@ Lengths in scene units; importances in 1 / length² (only their ratios matter).
 from .jit import helper
 from .sampling import search_cdf
 
-CLUSTER_NEAR = 2.0   # within this many of its radii from a cluster's centre, its targets' importances are summed
+CLUSTER_NEAR = 1.0   # within this many of its radii from a cluster's centre, its targets' importances are summed
+                     # (2.0: the same σ on the rose, 8 % slower; the farther ones count as their total / d²)
 
 
 @helper

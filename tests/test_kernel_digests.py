@@ -143,7 +143,7 @@ PINNED = {
     "room-line-weighted": "c7d42d71b5c767043f1e8ec90838e2f94856d9283c8c561cd7be56c0fa3a5a6b",
     "room-lambertian-nee": "dd12af7cbbbfac8ad4bcdc87cfd3a4f252703757db83e628fd737a2da2776b93",
     "room-lambertian-analog": "22c08b31f224eb5c161b766a925e443d33ca195c3ccb7f1120776b4a908fcb42",
-    "rose-nee": "be662e5ca8dfc2c72a92d3c7b57b29ef929083d4c95068c31289af2165194d23",
+    "rose-nee": "eda7996c935e84f0d10db23e25e5b1a28848e70725ad3ddca8498efbb3e41dfe",
 }
 
 
