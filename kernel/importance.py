@@ -21,9 +21,11 @@ CLUSTER_NEAR = 1.0   # within this many of its radii from a cluster's centre, it
 
 
 @helper
-def _importance(t, v, weight, floor2, scale, excl, tgt):
-    """Target t's importance from point v: ``weight[t] / max(scale · d², floor2[t])``, 0 if ``excl`` and v is
-    within t's near radius (``tgt.near_r2``: served by an own event)."""
+def _importance(t, v, how, tgt):
+    """Target t's importance from point v, ``how`` = (weight (n,), cluster weight (K,), floor2 (n,), scale,
+    excl): ``weight[t] / max(scale · d², floor2[t])``, 0 if ``excl`` and v is within t's near radius
+    (``tgt.near_r2``: served by an own event)."""
+    weight, _, floor2, scale, excl = how
     ex, ey, ez = v[0] - tgt.center[t, 0], v[1] - tgt.center[t, 1], v[2] - tgt.center[t, 2]
     d2 = ex * ex + ey * ey + ez * ez
     if excl and d2 < tgt.near_r2[t]:
@@ -32,26 +34,27 @@ def _importance(t, v, weight, floor2, scale, excl, tgt):
 
 
 @helper
-def cluster_cdf(v, weight, floor2, scale, excl, cluster_weight, tgt, cdf, exact):
-    """Cumulative importances of the clusters seen from v into ``cdf[n : n + K]`` (n targets, K clusters);
-    returns their sum.  A cluster within :data:`CLUSTER_NEAR` radii of v counts the exact sum of its targets'
-    importances (:func:`_importance`, cumulated into ``cdf`` at their positions in ``tgt.cluster_member``;
-    ``exact[k]`` = 1), a farther one ``cluster_weight[k] / (scale · d²)`` (``exact[k]`` = 0)."""
+def cluster_cdf(v, how, cl, tgt, cdf, exact):
+    """Cumulative importances of the clusters ``cl`` (:class:`~kernel.records.Clusters`) seen from v into
+    ``cdf[n : n + K]`` (n targets, K clusters); returns their sum.  A cluster within :data:`CLUSTER_NEAR`
+    radii of v counts the exact sum of its targets' importances (:func:`_importance`, cumulated into ``cdf``
+    at their positions in ``cl.member``; ``exact[k]`` = 1), a farther one its weight ``how[1][k] / (scale ·
+    d²)`` (``exact[k]`` = 0)."""
     n = tgt.kind.shape[0]
-    start, member = tgt.cluster_start, tgt.cluster_member
+    scale = how[3]
     total = 0.0
-    for k in range(tgt.cluster_radius.shape[0]):
-        ex, ey, ez = v[0] - tgt.cluster_center[k, 0], v[1] - tgt.cluster_center[k, 1], v[2] - tgt.cluster_center[k, 2]
+    for k in range(cl.radius.shape[0]):
+        ex, ey, ez = v[0] - cl.center[k, 0], v[1] - cl.center[k, 1], v[2] - cl.center[k, 2]
         d2 = ex * ex + ey * ey + ez * ez
-        r = CLUSTER_NEAR * tgt.cluster_radius[k]
+        r = CLUSTER_NEAR * cl.radius[k]
         if d2 < r * r:
             s = 0.0
-            for j in range(start[k], start[k + 1]):
-                s += _importance(member[j], v, weight, floor2, scale, excl, tgt)
+            for j in range(cl.start[k], cl.start[k + 1]):
+                s += _importance(cl.member[j], v, how, tgt)
                 cdf[j] = s
             exact[k] = 1
         else:
-            s = cluster_weight[k] / (scale * d2)
+            s = how[1][k] / (scale * d2)
             exact[k] = 0
         total += s
         cdf[n + k] = total
@@ -59,18 +62,17 @@ def cluster_cdf(v, weight, floor2, scale, excl, cluster_weight, tgt, cdf, exact)
 
 
 @helper
-def draw(u1, u2, total, v, weight, floor2, scale, excl, tgt, cdf, exact):
+def draw(u1, u2, total, v, how, cl, tgt, cdf, exact):
     """One target drawn from the importances :func:`cluster_cdf` left in ``cdf`` (their sum ``total``), from two
     uniforms: ``(t, probability)``; (-1, 0) if the cluster drawn has no target of positive importance."""
     n = tgt.kind.shape[0]
-    n_clusters = tgt.cluster_radius.shape[0]
-    k = search_cdf(cdf, n, n + n_clusters - 1, u1 * total) - n
+    k = search_cdf(cdf, n, n + cl.radius.shape[0] - 1, u1 * total) - n
     p_k = (cdf[n + k] - (cdf[n + k - 1] if k > 0 else 0.0)) / total
-    a, b = tgt.cluster_start[k], tgt.cluster_start[k + 1]
+    a, b = cl.start[k], cl.start[k + 1]
     if exact[k] == 0:          # its targets' importances, now (kept for the vertex's other picks)
         s = 0.0
         for j in range(a, b):
-            s += _importance(tgt.cluster_member[j], v, weight, floor2, scale, excl, tgt)
+            s += _importance(cl.member[j], v, how, tgt)
             cdf[j] = s
         exact[k] = 1
     s = cdf[b - 1]
@@ -78,4 +80,4 @@ def draw(u1, u2, total, v, weight, floor2, scale, excl, tgt, cdf, exact):
         return -1, 0.0
     j = search_cdf(cdf, a, b - 1, u2 * s)
     p_t = (cdf[j] - (cdf[j - 1] if j > a else 0.0)) / s
-    return tgt.cluster_member[j], p_k * p_t
+    return cl.member[j], p_k * p_t

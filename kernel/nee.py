@@ -296,7 +296,7 @@ def _zone_of(t, pid, zones):
 
 
 @helper
-def next_event(v, stat, cover_pid, organ_cover, control, geo, mat, sens, tgt, zones, photon, stats):
+def next_event(v, stat, cover, control, geo, mat, sens, tgt, zones, organs, photon, stats):
     """Expected deposits of the segment leaving vertex ``v`` (:class:`~kernel.records.Vertex`) on every target;
     returns how many were written.
 
@@ -315,16 +315,19 @@ def next_event(v, stat, cover_pid, organ_cover, control, geo, mat, sens, tgt, zo
     :func:`kernel.targets.near_discs`).  Its candidates are
     ``tgt.near_list[tgt.near_start[v.tri] : tgt.near_start[v.tri + 1]]``.  ``control``: the control variate
     is on (:mod:`kernel.control`): each pick of a sensor subtracts its γ.
-    ``cover_pid`` ≥ 0: v is a vertex on plane ``cover_pid`` reached straight from a next-event vertex, whose
-    zone events (:func:`kernel.zones.zone_event`) already served the near discs that have a zone on this
-    plane: their own events are skipped here.  ``organ_cover`` ≥ 0: v is on an organ reached straight from a
-    next-event vertex, by a segment of that length²; that vertex's organ zone events
-    (:func:`kernel.organ_zones.organ_zone_event`) served the own events of the organ targets near v (all but
-    v's own organ) whose near radius² is at most that: skipped here.
+    ``cover`` = (cover_pid, organ_cover).  ``cover_pid`` ≥ 0: v is a vertex on plane ``cover_pid`` reached
+    straight from a next-event vertex, whose zone events (:func:`kernel.zones.zone_event`) already served the
+    near discs that have a zone on this plane: their own events are skipped here.  ``organ_cover`` ≥ 0: v is
+    on an organ reached straight from a next-event vertex, by a segment of that length²; that vertex's organ
+    zone events (:func:`kernel.organ_zones.organ_zone_event`) served the own events of the organ targets near
+    v (all but v's own organ) whose near radius² is at most that: skipped here.  ``organs``
+    (:class:`~kernel.records.OrganEvents`, or None: sensors, drawn uniformly): picks drawn by importance
+    (:mod:`kernel.importance`).
     A point on a mesh target is seen when the first surface met on the way is the target's, at x
     (:func:`kernel.rays.reaches`); a sensor's, when nothing is in the way (a shadow ray).
     """
     vx, vy, vz, nx, ny, nz, mode, m, vscale, vtri = v
+    cover_pid, organ_cover = cover
     w, out_k, out_w, state = photon.w, photon.out_k, photon.out_w, photon.state
     picks = tgt.picks
     near_start, near_r2 = tgt.near_start, tgt.near_r2
@@ -337,21 +340,19 @@ def next_event(v, stat, cover_pid, organ_cover, control, geo, mat, sens, tgt, zo
     else:
         n_iter, scale = n_tgt, 1.0
     n_near = near_start[vtri + 1] - near_start[vtri] if scale != 1.0 and vtri >= 0 else 0
-    by_importance = scale != 1.0 and tgt.weight.shape[0] == n_tgt
-    vpos = (vx, vy, vz)
     total = 0.0
-    if by_importance:          # importances of the targets not served by an own event here
-        total = cluster_cdf(vpos, tgt.weight, tgt.img_near2, NEAR * NEAR, n_near > 0, tgt.cluster_weight, tgt,
-                            photon.cdf, photon.exact)
+    if organs is not None and scale != 1.0:   # importances of the targets not served by an own event here
+        how = (organs.weight, organs.cluster_weight, tgt.img_near2, NEAR * NEAR, n_near > 0)
+        total = cluster_cdf((vx, vy, vz), how, organs.clusters, tgt, photon.cdf, photon.exact)
         if not total > 0.0:
             n_iter = 0
     for j in range(n_near + n_iter):
         if j < n_near:            # a near target: its own next event
             t = tgt.near_list[near_start[vtri] + j]
             tscale = 1.0
-        elif by_importance:       # a pick in proportion to the target's importance seen from v
-            t, p_t = draw(uniform(state), uniform(state), total, vpos, tgt.weight, tgt.img_near2, NEAR * NEAR,
-                          n_near > 0, tgt, photon.cdf, photon.exact)
+        elif organs is not None:  # a pick in proportion to the target's importance seen from v
+            t, p_t = draw(uniform(state), uniform(state), total, (vx, vy, vz), how, organs.clusters, tgt,
+                          photon.cdf, photon.exact)
             if t < 0:
                 continue
             tscale = 1.0 / (n_iter * p_t)
@@ -367,25 +368,22 @@ def next_event(v, stat, cover_pid, organ_cover, control, geo, mat, sens, tgt, zo
         kind = tgt.kind[t]
         if j < n_near and kind >= T_MESH2 and organ_cover >= near_r2[t] and geo.receiver[vtri] != tgt.ref[t]:
             continue          # served by the organ zone events of the vertex this photon came from
-        if j < n_near and kind >= T_MESH2:    # a mesh's own events: several, their mean
-            for _ in range(OWN_SAMPLES):
-                u1, u2, u3 = uniform(state), uniform(state), uniform(state)
-                n_out = target_event(v, vmag, t, d2c, 1.0 / OWN_SAMPLES, w, u1, u2, u3, stat, geo, mat, sens, tgt,
-                                     photon, stats, n_out)
-            continue
-        u1, u2, u3 = uniform(state), uniform(state), uniform(state)
-        if d2c < tgt.near2[t]:
-            continue          # too close: 1/d² would be heavy-tailed; this segment's crossings are counted
-        if (control and scale != 1.0 and j >= n_near and kind <= T_QUAD     # a pick (not a near disc's own event),
-                and not (kind == T_DISC and d2c < (NEAR_FLOOR * sens.radius[tgt.ref[t]]) ** 2)):   # γ a fair guess
-            gam, cg = point_view(t, v, tgt, sens)
-            if gam > 0.0:
-                out_k[n_out] = tgt.row[t]
-                for b in range(n_bands):
-                    f = 1.0 if mode != V_SURFACE else mat.prob[m, DIFFUSE_R if cg > 0.0 else DIFFUSE_T, b]
-                    out_w[n_out, b] = -w[b] * gam * f * tscale
-                n_out += 1
-        n_out = target_event(v, vmag, t, d2c, tscale, w, u1, u2, u3, stat, geo, mat, sens, tgt, photon, stats, n_out)
+        reps = OWN_SAMPLES if j < n_near and kind >= T_MESH2 else 1    # a mesh's own events: their mean
+        for r in range(reps):
+            u1, u2, u3 = uniform(state), uniform(state), uniform(state)
+            if d2c < tgt.near2[t]:
+                break         # too close: 1/d² would be heavy-tailed; this segment's crossings are counted
+            if (control and r == 0 and scale != 1.0 and j >= n_near and kind <= T_QUAD   # a pick, not an own event,
+                    and not (kind == T_DISC and d2c < (NEAR_FLOOR * sens.radius[tgt.ref[t]]) ** 2)):  # γ a fair guess
+                gam, cg = point_view(t, v, tgt, sens)
+                if gam > 0.0:
+                    out_k[n_out] = tgt.row[t]
+                    for b in range(n_bands):
+                        f = 1.0 if mode != V_SURFACE else mat.prob[m, DIFFUSE_R if cg > 0.0 else DIFFUSE_T, b]
+                        out_w[n_out, b] = -w[b] * gam * f * tscale
+                    n_out += 1
+            n_out = target_event(v, vmag, t, d2c, tscale / reps, w, u1, u2, u3, stat, geo, mat, sens, tgt, photon,
+                                 stats, n_out)
     return n_out
 
 

@@ -26,6 +26,7 @@ from .embree import GEOM_ID, INVALID_ID, PRIM_ID, RAYHIT, ARGS
 from .ptr import call_ptr3, load_u32
 from .rays import magnitude, set_ray
 from .records import T_MESH2, V_ISOTROPIC, V_LAMBERT, V_SURFACE, OrganZones, Vertex
+from .targets import cluster_sums
 from .rng import uniform
 from .sampling import search_cdf, spherical_triangle
 from .tallies import C_SHADOW
@@ -38,7 +39,7 @@ def organ_zones(tri_verts, tri_receiver, tri_pid, near_start, near_list, near_r2
 
     ``tri_verts`` (T, 3, 3), ``tri_receiver`` (T,), ``tri_pid`` (T,) plane ids: the organs' triangles are those
     of a receiver without a plane (-1); ``near_*`` the targets' near lists and radii²; ``kind``, ``ref``,
-    ``center`` (n,) from :class:`~kernel.records.Targets`, and its ``clusters`` ``(cluster_start, cluster_member)``.
+    ``center`` (n,) from :class:`~kernel.records.Targets`, and their ``clusters`` (:class:`~kernel.records.Clusters`).
     Returns :class:`~kernel.records.OrganZones` (``picks`` 0: the caller's to set)."""
     T = len(tri_verts)
     tri_of = np.repeat(np.arange(T), np.diff(near_start))
@@ -65,8 +66,7 @@ def organ_zones(tri_verts, tri_receiver, tri_pid, near_start, near_list, near_r2
     zone_of = np.full(len(kind), -1, np.int64)
     zone_of[targets] = np.arange(len(targets))
     weight = (zone_of >= 0).astype(np.float64)
-    cluster_start, cluster_member = clusters
-    cluster_weight = np.array([weight[cluster_member[a:b]].sum() for a, b in zip(cluster_start[:-1], cluster_start[1:])])
+    cluster_weight = cluster_sums(weight, clusters)
     return OrganZones(0.0, np.ascontiguousarray(targets, np.int64), start, np.ascontiguousarray(tri_of, np.int64),
                       cdf_area, cdf_angle, total, zone_of, weight, np.ascontiguousarray(cluster_weight, np.float64))
 
@@ -82,7 +82,7 @@ def solid_angles(v):
 
 
 @helper
-def organ_zone_event(v, n_draw, stat, geo, mat, sens, tgt, oz, photon, stats):
+def organ_zone_event(v, n_draw, stat, geo, mat, sens, tgt, organs, photon, stats):
     """Two-step next events: the light that the segment leaving vertex ``v`` (:class:`~kernel.records.Vertex`)
     brings to an organ target t *through one diffuse vertex y on the organ surface beside it*
     (:func:`organ_zones`).
@@ -100,6 +100,7 @@ def organ_zone_event(v, n_draw, stat, geo, mat, sens, tgt, oz, photon, stats):
     in ``photon.out_k`` / ``photon.out_w``.
     """
     vx, vy, vz, nx, ny, nz, mode, m, vscale, _vtri = v
+    oz = organs.zones
     w, w2 = photon.w, photon.w2
     state, scratch = photon.state, photon.scratch
     n_bands = w.shape[0]
@@ -112,12 +113,12 @@ def organ_zone_event(v, n_draw, stat, geo, mat, sens, tgt, oz, photon, stats):
     n_out = 0
     # zones drawn ∝ 1 / max(d², R²) (R the zone's radius): about the solid angle of the zone seen from v
     vpos = (vx, vy, vz)
-    total = cluster_cdf(vpos, oz.weight, tgt.near_r2, 1.0, False, oz.cluster_weight, tgt, photon.cdf, photon.exact)
+    how = (oz.weight, oz.cluster_weight, tgt.near_r2, 1.0, False)
+    total = cluster_cdf(vpos, how, organs.clusters, tgt, photon.cdf, photon.exact)
     if not total > 0.0:
         return 0
     for _ in range(n_draw):
-        t, p_z = draw(uniform(state), uniform(state), total, vpos, oz.weight, tgt.near_r2, 1.0, False, tgt,
-                      photon.cdf, photon.exact)
+        t, p_z = draw(uniform(state), uniform(state), total, vpos, how, organs.clusters, tgt, photon.cdf, photon.exact)
         if t < 0:
             continue
         z = oz.zone_of[t]

@@ -105,13 +105,6 @@ Targets = namedtuple("Targets", [
     "near_start",    # (T + 1,) int64, and
     "near_list",     # int64: the discs near each triangle, which get an event of their own (kernel.nee.near_discs)
     "near_r2",       # (n,) float64: their near radius²
-    "weight",        # (n,) float64: picks drawn by importance, weight[t] / max(d², a²) (d from the vertex to t's
-                     # centre, a its bounding radius), or empty: picks drawn uniformly
-    "cluster_start",  # (K + 1,) int64: the targets in clusters (kernel.targets.target_clusters), cluster k's
-    "cluster_member",  # (n,) int64: cluster_member[cluster_start[k] : cluster_start[k + 1]]
-    "cluster_center",  # (K, 3) float64: a cluster's centre and
-    "cluster_radius",  # (K,) float64: the radius of a sphere holding its targets' bounding spheres
-    "cluster_weight",  # (K,) float64: the sum of its targets' weights
     "sensor_target",  # (S,) int64: each sensor's target, or -1
     "receiver_target",  # (R,) int64: each receiver's target, or -1
 ])
@@ -146,7 +139,22 @@ OrganZones = namedtuple("OrganZones", [
     "total",         # (Z, 2) float64: each zone's area and solid angle (sr) seen from its target's centre
     "zone_of",       # (n,) int64: each target's zone, or -1
     "weight",        # (n,) float64: 1 for the targets that have a zone, 0 for the others
-    "cluster_weight",  # (K,) float64: the number of zones in each target cluster (Targets.cluster_*)
+    "cluster_weight",  # (K,) float64: the number of zones in each cluster of targets (Clusters)
+])
+
+Clusters = namedtuple("Clusters", [
+    "start",         # (K + 1,) int64: the targets grouped in space (kernel.targets.target_clusters): cluster k's
+    "member",        # (n,) int64: are member[start[k] : start[k + 1]]
+    "center",        # (K, 3) float64: a cluster's centre and
+    "radius",        # (K,) float64: the radius of a sphere holding its targets' bounding spheres
+])
+
+# next events to organs (LightModel: organs are the targets; None for sensors, and none of their code compiled)
+OrganEvents = namedtuple("OrganEvents", [
+    "clusters",      # Clusters of the targets
+    "weight",        # (n,) float64: picks drawn ∝ weight[t] / max(d², a²) (kernel.importance)
+    "cluster_weight",  # (K,) float64: the sum of each cluster's weights
+    "zones",         # OrganZones: two-step next events through the organ surface beside an organ
 ])
 
 Control = namedtuple("Control", [
@@ -164,8 +172,9 @@ Control = namedtuple("Control", [
 
 # what every run traces through
 Scene = namedtuple("Scene", ["geometry", "materials", "emitters", "sensors"])
-# next events (estimator nee; None where there is no target: their code is then not compiled)
-NextEvents = namedtuple("NextEvents", ["targets", "mirrors", "zones", "organ_zones", "control"])
+# next events (estimator nee; None where there is no target: their code is then not compiled); organs: OrganEvents
+# or None
+NextEvents = namedtuple("NextEvents", ["targets", "mirrors", "zones", "control", "organs"])
 
 Tallies = namedtuple("Tallies", [
     "tally",         # (K, B) float64: sums of per-photon contributions; rows (kernel.tallies): S sensor

@@ -12,7 +12,7 @@ import math
 import numpy as np
 
 from .nee import MESH_OWN, NEAR, NEAR_FLOOR, NEAR_PICKED
-from .records import T_DISC, T_MESH1, T_MESH2, T_QUAD, Targets, f64, i64
+from .records import T_DISC, T_MESH1, T_MESH2, T_QUAD, Clusters, Targets, f64, i64
 
 
 def build_targets(sens, sens_area, sens_bound, n_receivers_rows, tri_receiver, tri_verts, tri_two_sided,
@@ -96,8 +96,7 @@ def build_targets(sens, sens_area, sens_bound, n_receivers_rows, tri_receiver, t
                    np.ascontiguousarray(kind, dtype=np.int32), i64(row), i64(abs_row), i64(ref), i64(first),
                    i64(count), f64(area), center, f64(near2), f64(img_near2),
                    i64(nee_tri if nee_tri else np.zeros(0)), f64(nee_cdf if nee_cdf else np.zeros(0)),
-                   near_start, near_list, near_r2, np.zeros(0), *target_clusters(center, np.sqrt(np.asarray(img_near2)) / NEAR),
-                   np.zeros(0), sensor_target, receiver_target)
+                   near_start, near_list, near_r2, sensor_target, receiver_target)
 
 
 def near_discs(tri_verts, center, disc_radius, factor=NEAR_PICKED, mesh_radius=None):
@@ -199,10 +198,10 @@ def target_clusters(center, bound, size=None):
     the median of their centres along the widest axis, until at most ``size`` targets (default ⌈√n⌉, at least
     8) remain.  ``center`` (n, 3), ``bound`` (n,) bounding radii.  Returns ``(start (K + 1,), member (n,),
     cluster centre (K, 3), cluster radius (K,))``: cluster k holds targets ``member[start[k] : start[k + 1]]``
-    within a sphere of that centre and radius."""
+    within a sphere of that centre and radius, as a :class:`~kernel.records.Clusters`."""
     n = len(center)
     if n == 0:
-        return np.zeros(1, np.int64), np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros(0)
+        return Clusters(np.zeros(1, np.int64), np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros(0))
     size = max(8, int(math.ceil(math.sqrt(n)))) if size is None else size
     groups, todo = [], [np.arange(n)]
     while todo:
@@ -219,4 +218,12 @@ def target_clusters(center, bound, size=None):
     member = np.concatenate(groups).astype(np.int64) if groups else np.zeros(0, np.int64)
     c = np.array([(center[g].min(axis=0) + center[g].max(axis=0)) / 2 for g in groups]).reshape(-1, 3)
     r = np.array([np.max(np.linalg.norm(center[g] - c[k], axis=1) + bound[g]) for k, g in enumerate(groups)])
-    return start, member, f64(c), f64(r)
+    return Clusters(start, member, f64(c), f64(r))
+
+
+def cluster_sums(weight, clusters):
+    """(K,) float64: the sum of ``weight`` (n,) over each cluster's targets."""
+    member, start = clusters.member, clusters.start
+    if len(member) == 0:
+        return np.zeros(len(start) - 1)
+    return f64(np.add.reduceat(np.asarray(weight, float)[member], start[:-1]))

@@ -104,7 +104,8 @@ def trace_chunk(scene, nee, scratch, seed, first, count, tallies, stats):
     (:func:`work_arrays`) and runs :func:`trace_photons`, the one compiled function Python calls.
     """
     photon, accum, cvw = work_arrays(scene, nee, scratch, tallies)
-    trace_photons(scene, nee, seed, first, count, tallies, stats, photon, accum, cvw)
+    trace_photons(scene, nee, None if nee is None else nee.organs, seed, first, count, tallies, stats, photon, accum,
+                  cvw)
 
 
 def work_arrays(scene, nee, scratch, tallies):
@@ -120,8 +121,10 @@ def work_arrays(scene, nee, scratch, tallies):
         tgt = nee.targets
         n_tgt = tgt.kind.shape[0]
         n_near = int(np.max(np.diff(tgt.near_start))) if tgt.near_start.shape[0] > 1 else 0
-        n_cdf, n_clusters = n_tgt, tgt.cluster_radius.shape[0]
-        n_draw = 1 + int(max(nee.mirrors.picks, nee.zones.picks, nee.organ_zones.picks))
+        organ_picks = 0.0
+        if nee.organs is not None:
+            n_cdf, n_clusters, organ_picks = n_tgt, nee.organs.clusters.radius.shape[0], nee.organs.zones.picks
+        n_draw = 1 + int(max(nee.mirrors.picks, nee.zones.picks, organ_picks))
         n_slots = 3 * (n_tgt + tgt.picks) + 2 * OWN_SAMPLES * n_near + 2 * n_draw   # own events and picks (up to
         n_cv = nee.control.row.shape[0]          # 3 deposits each, a mesh's own events 2 each), or image / zone events
     flush_start = scene.sensors.flush_start
@@ -138,8 +141,9 @@ def work_arrays(scene, nee, scratch, tallies):
 
 
 @njit(nogil=True, no_cfunc_wrapper=True, cache=True, _nrt=False)
-def trace_photons(scene, nee, seed, first, count, tallies, stats, photon, accum, cvw):
-    """The photon loop of :func:`trace_chunk` (its arguments, then its work arrays), compiled without
+def trace_photons(scene, nee, organs, seed, first, count, tallies, stats, photon, accum, cvw):
+    """The photon loop of :func:`trace_chunk` (its arguments, ``nee.organs`` as ``organs``, then its work
+    arrays), compiled without
     reference counting: array views and inlined helpers here would otherwise cost an atomic
     increment and decrement each (~20 % of a rose step's CPU time, more with two threads).
 
@@ -150,7 +154,9 @@ def trace_photons(scene, nee, seed, first, count, tallies, stats, photon, accum,
     records' arrays as ~9 machine arguments, 300-500 per call, which cost more than the next events' own
     arithmetic (``docs/performance.md``).  What next events need is under ``if nee is not None``:
     numba drops those branches when ``nee`` is None, so that ``weighted`` and ``analog`` compile a loop
-    without them."""
+    without them; and what next events to organs need under ``if organs is not None``
+    (:class:`~kernel.records.OrganEvents`: a plant's organs are the targets), so that runs on sensors compile
+    none of it."""
     geo, mat, emitters, sens = scene
     counters = stats.counters
     scratch, state, w, dep, seen = photon.scratch, photon.state, photon.w, photon.dep, photon.seen
@@ -167,13 +173,16 @@ def trace_photons(scene, nee, seed, first, count, tallies, stats, photon, accum,
     args = scratch + ARGS
     cand_count = scratch + CAND_COUNT
     if nee is not None:
-        tgt, mir, zones, orgz, cv = nee
+        tgt, mir, zones, cv, _ = nee
         sensor_target, receiver_target = tgt.sensor_target, tgt.receiver_target
         n_tgt = tgt.kind.shape[0]
         control = cv.on
         img_on = mir.picks > 0.0 and (tgt.on_sensors or tgt.on_receivers) and n_tgt > 0 and mir.plane.shape[0] > 0
         zone_on = zones.picks > 0.0 and tgt.on_sensors and zones.target_plane.shape[0] > 0 and 0 < tgt.picks < n_tgt
-        organ_on = orgz.picks > 0.0 and tgt.on_receivers and orgz.target.shape[0] > 0 and 0 < tgt.picks < n_tgt
+        organ_on = False
+        if organs is not None:
+            organ_on = (organs.zones.picks > 0.0 and tgt.on_receivers and organs.zones.target.shape[0] > 0
+                        and 0 < tgt.picks < n_tgt)
         stat_planes = n_mat + tgt.from_emitter.shape[0]
 
     n_pass = mat.cum.shape[2]      # paths per photon: 1 (all bands on one), n_bands (analog), or band groups
@@ -213,8 +222,8 @@ def trace_photons(scene, nee, seed, first, count, tallies, stats, photon, accum,
             if nee is not None and events:   # expected light of the segment leaving the vertex, if diffusely
                 if control:
                     control_deposits(vertex, w, near, mat, cv, cvw)
-                n_out = next_event(vertex, stat, cover, organ_cover, control, geo, mat, sens, tgt, zones, photon,
-                                   stats)
+                n_out = next_event(vertex, stat, (cover, organ_cover), control, geo, mat, sens, tgt, zones, organs,
+                                   photon, stats)
                 nh = record_all(n_out, nh, photon, accum)
                 # and through a mirror (if not cut at that mirror); the call itself is not free: only if drawn
                 n_img = n_draws(mir.picks, state) if img_on and room else 0
@@ -225,10 +234,11 @@ def trace_photons(scene, nee, seed, first, count, tallies, stats, photon, accum,
                 if n_zone > 0:     # and through one diffuse vertex beside a disc
                     n_out = zone_event(vertex, n_zone, geo, mat, sens, tgt, zones, photon, stats)
                     nh = record_all(n_out, nh, photon, accum)
-                n_oz = n_draws(orgz.picks, state) if organ_on and room else 0
-                if n_oz > 0:       # and through one diffuse vertex on the organ surface beside an organ
-                    n_out = organ_zone_event(vertex, n_oz, stat, geo, mat, sens, tgt, orgz, photon, stats)
-                    nh = record_all(n_out, nh, photon, accum)
+                if organs is not None:
+                    n_oz = n_draws(organs.zones.picks, state) if organ_on and room else 0
+                    if n_oz > 0:   # and through one diffuse vertex on the organ surface beside an organ
+                        n_out = organ_zone_event(vertex, n_oz, stat, geo, mat, sens, tgt, organs, photon, stats)
+                        nh = record_all(n_out, nh, photon, accum)
             if on_surface:
                 # one event, drawn with probabilities q shared by the bands; weights carry the rest
                 u = uniform(state)
@@ -388,8 +398,9 @@ def trace_photons(scene, nee, seed, first, count, tallies, stats, photon, accum,
             if nee is not None and events:
                 cover = np.int64(geo.plane_id[tri]) if zone_on and after_diffuse else np.int64(-1)
                 organ_cover = -1.0
-                if organ_on and after_diffuse and geo.plane_id[tri] < 0 and rec >= 0:
-                    organ_cover = (px - vx0) ** 2 + (py - vy0) ** 2 + (pz - vz0) ** 2
+                if organs is not None:
+                    if organ_on and after_diffuse and geo.plane_id[tri] < 0 and rec >= 0:
+                        organ_cover = (px - vx0) ** 2 + (py - vy0) ** 2 + (pz - vz0) ** 2
                 vertex = Vertex(px, py, pz, nx, ny, nz, V_SURFACE, m, pscale + oscale, tri)
                 stat = m
                 near = 1 if tgt.near_start[tri + 1] > tgt.near_start[tri] else 0

@@ -20,13 +20,13 @@ import numpy as np
 from .errors import InputError, ResourceError
 from .kernel import embree
 from .kernel.control import build_control
-from .kernel.records import (Emitters, Geometry, Materials, Mirrors, NextEvents, OrganZones, Scene, Sensors, Zones,
-                             f64, i32,
-                             i64, new_tallies, u8)
-from .kernel.tallies import C_BATCHES, N_COUNTERS
-from .kernel.targets import build_targets
-from .kernel.trace import trace_chunk
+from .kernel.records import (Emitters, Geometry, Materials, Mirrors, NextEvents, OrganEvents, Scene, Sensors, Zones,
+                             f64, i32, i64, new_tallies, u8)
+from .kernel.nee import NEAR
 from .kernel.organ_zones import organ_zones
+from .kernel.tallies import C_BATCHES, N_COUNTERS
+from .kernel.targets import build_targets, cluster_sums, target_clusters
+from .kernel.trace import trace_chunk
 from .kernel.zones import near_zones
 from .materials import SPECULAR_R, sampling_tables
 from .geometry import coplanar_partners, mirror_planes, partner_free_boxes, plane_ids, triangle_normals
@@ -221,7 +221,7 @@ class KernelScene:
         self.nee_receiver_mask = None   # (R,) bool: receivers that are next-event targets (None: all)
         self.nee_images = 0.5       # next events through a perfect mirror per vertex, on average (0: none)
         self.nee_zones = 0.3        # two-step next events through the surface beside a disc, per vertex (0: none)
-        self.nee_importance = True  # organ targets picked by importance (kernel.nee.importance_cdf), not uniformly
+        self.nee_importance = True  # next events to organs: picks by importance (kernel.importance), organ zones
         self.nee_organ_zones = 0.5  # two-step next events through the organ surface beside an organ, per vertex
         tris = chamber.triangles
         area = 0.5 * np.linalg.norm(np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0]), axis=1)
@@ -336,7 +336,7 @@ class KernelScene:
         """Rebuild the next-event target arrays after a change of organs or of ``nee_*`` flags."""
         mask = self.nee_receiver_mask
         key = (id(self.tri_verts), self.tri_verts.shape, id(self.tri_receiver), id(self.sens), bool(self.nee_sensors), bool(self.nee_receivers),
-               int(self.nee_picks), None if mask is None else np.asarray(mask).tobytes())
+               int(self.nee_picks), bool(self.nee_importance), None if mask is None else np.asarray(mask).tobytes())
         if getattr(self, "_targets_key", None) == key:
             return                   # the same organs and flags: the arrays built last time still hold
         self._targets_key = key
@@ -362,15 +362,15 @@ class KernelScene:
                                     tgt.near_list, tgt.near_r2, tgt.center, disc_radius, disc_normal)
         else:
             self.zones = Zones(0.0, np.zeros((0, 14)), np.zeros((0, 2), np.int64), np.zeros(n_tgt + 1, np.int64))
-        # zones of organ surface beside organ targets for two-step next events (with random picks, as own events)
-        if self.nee_receivers and 0 < self.nee_picks < n_tgt:
-            self.organ_zones = organ_zones(self.tri_verts, self.tri_receiver, self.tri_pid, tgt.near_start,
-                                           tgt.near_list, tgt.near_r2, tgt.kind, tgt.ref, tgt.center,
-                                           (tgt.cluster_start, tgt.cluster_member))
-        else:
-            self.organ_zones = OrganZones(0.0, np.zeros(0, np.int64), np.zeros(1, np.int64), np.zeros(0, np.int64),
-                                          np.zeros(0), np.zeros(0), np.zeros((0, 2)), np.full(n_tgt, -1, np.int64),
-                                          np.zeros(n_tgt), np.zeros(len(tgt.cluster_radius)))
+        # next events to organs (the plant's organs are the targets, with random picks): picks by importance over
+        # clusters of targets, two-step events through the organ surface beside an organ
+        self.organ_events = None
+        if self.nee_importance and self.nee_receivers and not self.nee_sensors and 0 < self.nee_picks < n_tgt:
+            clusters = target_clusters(tgt.center, np.sqrt(tgt.img_near2) / NEAR)
+            weight = np.ones(n_tgt)
+            zones = organ_zones(self.tri_verts, self.tri_receiver, self.tri_pid, tgt.near_start, tgt.near_list,
+                                tgt.near_r2, tgt.kind, tgt.ref, tgt.center, clusters)
+            self.organ_events = OrganEvents(clusters, weight, cluster_sums(weight, clusters), zones)
 
     def prune_next_events(self, photons: int = 8192, max_share: float = 0.0, seed: int = 987654321,
                           threads=None, min_plane_share: float = 0.01, min_rays: int = 256, keep=()) -> dict:
@@ -501,25 +501,22 @@ class KernelScene:
                             i32(self.cop_list), f64(self.cop_box), f64(self.cop_free), int(self.n_receivers))
         materials = Materials(f64(self.mat_prob), f64(self.mat_cum), i64(self.band_pass), f64(self.mat_phong),
                               self.estimator != "analog", int(phys.max_depth))
-        by_importance = self.nee_importance and self.nee_receivers and not self.nee_sensors
-        tgt = self.targets
-        weight = np.ones(len(tgt.kind)) if by_importance else np.zeros(0)
-        cluster_weight = (np.array([weight[tgt.cluster_member[a:b]].sum() for a, b in
-                                    zip(tgt.cluster_start[:-1], tgt.cluster_start[1:])]) if by_importance else np.zeros(0))
-        targets = tgt._replace(weight=weight, cluster_weight=f64(cluster_weight))
-        targets = targets._replace(on_sensors=bool(self.nee_sensors), on_receivers=bool(self.nee_receivers),
+        targets = self.targets._replace(on_sensors=bool(self.nee_sensors), on_receivers=bool(self.nee_receivers),
                                         picks=int(self.nee_picks), from_material=u8(self.mat_nee),
                                         from_emitter=u8(self.emit_nee))
         plane, cdf, inv_p = self._mirror_draw()
         mirrors = Mirrors(float(self.nee_images) if nee else 0.0, i32(plane), f64(cdf), f64(inv_p), u8(self.mir_on),
                           f64(self.mir_point), f64(self.mir_normal), f64(self.mir_box), u8(self.mir_one_sided))
         zones = self.zones._replace(picks=float(self.nee_zones) if self.nee_sensors else 0.0)
-        ozones = self.organ_zones._replace(picks=float(self.nee_organ_zones) if self.nee_receivers else 0.0)
         scene = Scene(geometry, materials, self.emit, self.sens)
         if len(targets.kind) == 0:
             return scene, None
         control = build_control(targets, self.sens, bool(self.nee_control), int(self.nee_batch))
-        return scene, NextEvents(targets, mirrors, zones, ozones, control)
+        organs = None
+        if self.organ_events is not None:      # a plant's organs are the targets (LightModel)
+            ev = self.organ_events
+            organs = ev._replace(weight=f64(ev.weight), zones=ev.zones._replace(picks=float(self.nee_organ_zones)))
+        return scene, NextEvents(targets, mirrors, zones, control, organs)
 
     def trace(self, seed: int, first: int, count: int, records=None):
         """Trace one chunk through ``records`` (default: :meth:`records` now); returns (tally, tally_sq,

@@ -139,8 +139,8 @@ def test_shadow_rays_reach_thin_sliver_triangles(tmp_path):
     vertex = Vertex(900.0, 500.0, 0.0, 0.0, 0.0, 1.0, V_SURFACE, grey, 1000.0, -1)
     for i in range(200):
         seed_stream(state, 5, i)
-        next_event(vertex, 0, -1, -1.0, False, scene.geometry, scene.materials, scene.sensors, tgt, nee.zones,
-                       photon, Stats(np.zeros(6, np.int64), stats))
+        next_event(vertex, 0, (-1, -1.0), False, scene.geometry, scene.materials, scene.sensors, tgt, nee.zones,
+                       None, photon, Stats(np.zeros(6, np.int64), stats))
     assert stats[0, 0] == 200 and stats[0, 1] == 200, "shadow rays cast, unblocked: %s" % stats[0, :2]
 
     ks.mat_nee[:] = 1

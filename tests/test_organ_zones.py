@@ -85,18 +85,18 @@ def test_importance_picks_favour_the_targets_beside_a_vertex(pocket):
     ks.nee_sensors = False
     ks.set_organs(model.organs_from_meshes(organs), model.materials)
     (_, nee) = ks.records()
-    tgt = nee.targets
-    n, k = len(tgt.kind), len(tgt.cluster_radius)
-    assert tgt.weight.shape == (n,) and 1 < k < n          # organs only: picks by importance, over clusters
+    tgt, organs = nee.targets, nee.organs
+    n, k = len(tgt.kind), len(organs.clusters.radius)
+    assert organs.weight.shape == (n,) and 1 < k < n        # organs only: picks by importance, over clusters
     bud, leaf = tgt.receiver_target[0], tgt.receiver_target[1]
     cdf, exact = np.zeros(n + k), np.zeros(k, np.uint8)
     v = (530.0, 500.0, 260.0)
-    args = (v, tgt.weight, tgt.img_near2, 9.0, True)
-    total = cluster_cdf(*args, tgt.cluster_weight, tgt, cdf, exact)
+    how = (organs.weight, organs.cluster_weight, tgt.img_near2, 9.0, True)
+    total = cluster_cdf(v, how, organs.clusters, tgt, cdf, exact)
     rng = np.random.default_rng(3)
     counts, prob = np.zeros(n), np.full(n, np.nan)
     for u1, u2 in rng.random((20000, 2)):
-        t, p = draw(u1, u2, total, *args, tgt, cdf, exact)
+        t, p = draw(u1, u2, total, v, how, organs.clusters, tgt, cdf, exact)
         counts[t] += 1
         assert np.isnan(prob[t]) or prob[t] == pytest.approx(p, rel=1e-12)
         prob[t] = p
@@ -119,7 +119,7 @@ def test_zones_are_the_other_organs_surface_within_the_near_radius(pocket):
     ks = model.kscene
     ks.nee_sensors = False
     ks.set_organs(model.organs_from_meshes(organs), model.materials)
-    oz, tgt = ks.organ_zones, ks.targets
+    oz, tgt = ks.organ_events.zones, ks.targets
     bud = tgt.receiver_target[0]
     z = int(np.flatnonzero(oz.target == bud)[0])
     tris = oz.tri[oz.start[z]:oz.start[z + 1]]
