@@ -12,6 +12,7 @@ import math
 import numpy as np
 
 from .nee import MESH_OWN, NEAR, NEAR_FLOOR, NEAR_PICKED
+from .neighbours import near_pairs, nearest_other
 from .records import T_DISC, T_MESH1, T_MESH2, T_QUAD, Clusters, Targets, f64, i64
 
 
@@ -52,34 +53,44 @@ def build_targets(sens, sens_area, sens_bound, n_receivers_rows, tri_receiver, t
             near2.append(0.0 if sens_kind[s] == 0 else img_near2[-1])
             sensor_target[s] = len(kind) - 1
     if receivers and n_receivers_rows:
+        # receivers' triangles grouped by receiver (stable: each in its own order), summed per group in numpy
         tri_area = 0.5 * np.linalg.norm(np.cross(tri_verts[:, 1] - tri_verts[:, 0], tri_verts[:, 2] - tri_verts[:, 0]),
                                         axis=1)
         order = np.argsort(tri_receiver, kind="stable")
-        recv_sorted = tri_receiver[order]
-        for r in range(n_receivers_rows):
-            lo, hi = np.searchsorted(recv_sorted, r), np.searchsorted(recv_sorted, r, side="right")
-            if receiver_mask is not None and not receiver_mask[r]:
-                continue
-            tris = order[lo:hi]
-            a = tri_area[tris]
-            total = a.sum()
-            if len(tris) == 0 or not total > 0:
-                continue
-            kind.append(T_MESH2 if tri_two_sided[tris].all() else T_MESH1)
+        order = order[tri_receiver[order] >= 0]
+        recv = tri_receiver[order]
+        r_first = np.flatnonzero(np.r_[True, recv[1:] != recv[:-1]]) if len(recv) else np.zeros(0, np.int64)
+        r_of = recv[r_first]
+        r_count = np.diff(np.r_[r_first, len(recv)])
+        a = tri_area[order]
+        r_total = np.add.reduceat(a, r_first) if len(a) else np.zeros(0)      # (only to skip empty receivers)
+        pts_lo = tri_verts[order].min(axis=1)
+        pts_hi = tri_verts[order].max(axis=1)
+        r_lo = np.minimum.reduceat(pts_lo, r_first) if len(a) else np.zeros((0, 3))
+        r_hi = np.maximum.reduceat(pts_hi, r_first) if len(a) else np.zeros((0, 3))
+        r_two = np.logical_and.reduceat(tri_two_sided[order].astype(bool), r_first) if len(a) else np.zeros(0, bool)
+        keep = r_total > 0
+        if receiver_mask is not None:
+            keep &= np.asarray(receiver_mask, bool)[r_of]
+        offset = 0
+        for g in np.flatnonzero(keep):
+            r = int(r_of[g])
+            lo_g, hi_g = r_first[g], r_first[g] + r_count[g]
+            kind.append(T_MESH2 if r_two[g] else T_MESH1)
             row.append(receiver_row0 + r)
             abs_row.append(absorbed_row0 + r)
             ref.append(r)
-            first.append(len(nee_tri))
-            count.append(len(tris))
+            first.append(offset)
+            count.append(int(r_count[g]))
+            offset += int(r_count[g])
+            total = a[lo_g:hi_g].sum()
             area.append(float(total))
-            cdf = np.cumsum(a) / total
+            cdf = np.cumsum(a[lo_g:hi_g]) / total          # points on a mesh target are drawn by area
             cdf[-1] = 1.0 + 1e-12
-            nee_tri.extend(tris.tolist())
-            nee_cdf.extend(cdf.tolist())
-            pts = tri_verts[tris].reshape(-1, 3)
-            lo_, hi_ = pts.min(axis=0), pts.max(axis=0)
-            center.append((lo_ + hi_) / 2)
-            img_near2.append(float((NEAR * np.linalg.norm(hi_ - lo_) / 2) ** 2))
+            nee_tri.append(order[lo_g:hi_g])
+            nee_cdf.append(cdf)
+            center.append((r_lo[g] + r_hi[g]) / 2)
+            img_near2.append(float((NEAR * np.linalg.norm(r_hi[g] - r_lo[g]) / 2) ** 2))
             near2.append(0.0)     # no exclusion: a triangle near v is sampled by solid angle (kernel.nee)
             receiver_target[r] = len(kind) - 1
     center = f64(np.reshape(center, (-1, 3)))
@@ -95,7 +106,8 @@ def build_targets(sens, sens_area, sens_bound, n_receivers_rows, tri_receiver, t
     return Targets(bool(sensors), bool(receivers), 0, np.zeros(0, np.uint8), np.zeros(0, np.uint8),
                    np.ascontiguousarray(kind, dtype=np.int32), i64(row), i64(abs_row), i64(ref), i64(first),
                    i64(count), f64(area), center, f64(near2), f64(img_near2),
-                   i64(nee_tri if nee_tri else np.zeros(0)), f64(nee_cdf if nee_cdf else np.zeros(0)),
+                   i64(np.concatenate(nee_tri) if nee_tri else np.zeros(0)),
+                   f64(np.concatenate(nee_cdf) if nee_cdf else np.zeros(0)),
                    near_start, near_list, near_r2, sensor_target, receiver_target)
 
 
@@ -127,17 +139,14 @@ def near_discs(tri_verts, center, disc_radius, factor=NEAR_PICKED, mesh_radius=N
     near_r2 = np.ascontiguousarray(radius ** 2, dtype=np.float64)
     lo, hi = tri_verts.min(axis=1), tri_verts.max(axis=1)
     pairs_tri, pairs_t = [], []
-    candidates = _grid(lo, hi, radius[meshes].max()) if meshes.any() else None
-    for t in np.flatnonzero(near_r2 > 0):
-        cand = candidates(center[t]) if meshes[t] else slice(None)
-        gap = np.clip(center[t], lo[cand], hi[cand]) - center[t]
+    for t in np.flatnonzero((near_r2 > 0) & ~meshes):        # discs: a few hundred at most
+        gap = np.clip(center[t], lo, hi) - center[t]
         tris = np.flatnonzero(np.einsum("ij,ij->i", gap, gap) < near_r2[t])
-        if meshes[t]:
-            tris = cand[tris]
         pairs_tri.append(tris)
         pairs_t.append(np.full(len(tris), t))
-    tris = np.concatenate(pairs_tri) if pairs_tri else np.zeros(0, np.int64)
-    ts = np.concatenate(pairs_t) if pairs_t else np.zeros(0, np.int64)
+    mesh_tri, mesh_t = near_pairs(lo, hi, center, radius, np.flatnonzero((near_r2 > 0) & meshes))   # organs: many
+    tris = np.concatenate(pairs_tri + [mesh_tri]).astype(np.int64)
+    ts = np.concatenate(pairs_t + [mesh_t]).astype(np.int64)
     order = np.argsort(tris, kind="stable")
     near_start = np.zeros(len(tri_verts) + 1, np.int64)
     np.cumsum(np.bincount(tris, minlength=len(tri_verts)), out=near_start[1:])
@@ -155,42 +164,10 @@ def mesh_near_radius(center, bound, factor=NEAR_PICKED):
     mesh = np.flatnonzero(bound > 0)
     if len(mesh) == 0:
         return radius
-    c = center[mesh]
-    nearest = np.full(len(mesh), np.inf)
-    for a in range(0, len(mesh), 1024):          # nearest other target, in blocks (n up to ~10^4)
-        d2 = ((c[a:a + 1024, None, :] - center[None, :, :]) ** 2).sum(axis=2)
-        d2[np.arange(len(d2)), mesh[a:a + 1024]] = np.inf
-        nearest[a:a + 1024] = np.sqrt(d2.min(axis=1))
+    nearest = nearest_other(center, mesh)
     b = bound[mesh]
     radius[mesh] = np.maximum(np.minimum(factor * b * math.sqrt(n), 1.5 * nearest), MESH_OWN * b)
     return radius
-
-
-def _grid(lo, hi, reach):
-    """``candidates(c)``: the triangles (sorted indices) that may come within ``reach`` of point c, from a grid of
-    cells of size ``reach`` over the triangles' bounding-box centres; triangles wider than a cell are always
-    candidates.  ``lo``, ``hi`` (T, 3) the triangles' bounds.  Keeps :func:`near_discs` for thousands of organ
-    targets O(targets · neighbours) instead of O(targets · triangles)."""
-    cell = max(float(reach), 1e-30)
-    mid = (lo + hi) / 2
-    wide = np.flatnonzero((hi - lo).max(axis=1) > cell)
-    small = np.setdiff1d(np.arange(len(lo)), wide)
-    key = np.floor(mid[small] / cell).astype(np.int64)
-    order = np.lexsort(key.T[::-1])
-    key, small = key[order], small[order]
-    first = np.flatnonzero(np.r_[True, (key[1:] != key[:-1]).any(axis=1)]) if len(key) else np.zeros(0, np.int64)
-    bounds = np.r_[first, len(key)]
-    buckets = {tuple(key[f]): small[f:e] for f, e in zip(bounds[:-1].tolist(), bounds[1:].tolist())}
-    steps = range(-2, 3)       # a triangle within reach of c: its centre within reach + cell / 2 ... < 2 cells
-    empty = np.zeros(0, np.int64)
-
-    def candidates(c):
-        c0 = np.floor(np.asarray(c) / cell).astype(np.int64)
-        found = [buckets.get((c0[0] + dx, c0[1] + dy, c0[2] + dz), empty)
-                 for dx in steps for dy in steps for dz in steps]
-        return np.concatenate(found + [wide])      # buckets and wide triangles are disjoint
-
-    return candidates
 
 
 def target_clusters(center, bound, size=None):
