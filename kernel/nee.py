@@ -332,7 +332,6 @@ def next_event(v, stat, cover, control, geo, mat, sens, tgt, zones, organs, phot
     picks = tgt.picks
     near_start, near_r2 = tgt.near_start, tgt.near_r2
     n_bands = w.shape[0]
-    vmag = max(abs(vx), abs(vy), abs(vz), vscale)
     n_out = 0
     n_tgt = tgt.kind.shape[0]
     if picks > 0 and picks < n_tgt:
@@ -382,19 +381,22 @@ def next_event(v, stat, cover, control, geo, mat, sens, tgt, zones, organs, phot
                         f = 1.0 if mode != V_SURFACE else mat.prob[m, DIFFUSE_R if cg > 0.0 else DIFFUSE_T, b]
                         out_w[n_out, b] = -w[b] * gam * f * tscale
                     n_out += 1
-            n_out = target_event(v, vmag, t, d2c, tscale / reps, w, u1, u2, u3, stat, geo, mat, sens, tgt, photon,
+            n_out = target_event(v, (t, d2c, tscale / reps), w, (u1, u2, u3), stat, geo, mat, sens, tgt, photon,
                                  stats, n_out)
     return n_out
 
 
 @helper
-def target_event(v, vmag, t, d2c, tscale, w, u1, u2, u3, stat, geo, mat, sens, tgt, photon, stats, n_out):
-    """One next event from vertex ``v`` to target t (|v − its centre|² = ``d2c``), weighted ``tscale``, for a
-    photon of weights ``w`` (B,), from three uniforms: a point x on t (a disc's by solid angle, a mesh's
-    triangle by solid angle near it, else by area), the leaving pdf towards x, and one ray for what is in
-    the way.  Writes t's deposit (and, for a mesh with an absorbed row, what the side met absorbs) from
+def target_event(v, pick, w, u, stat, geo, mat, sens, tgt, photon, stats, n_out):
+    """One next event from vertex ``v`` to a target, ``pick`` = (t, |v − t's centre|², weight), for a photon of
+    weights ``w`` (B,), from three uniforms ``u``: a point x on t (a disc's by solid angle, a mesh's triangle
+    by solid angle near it, else by area), the leaving pdf towards x, and one ray for what is in the way.
+    Writes t's deposit (and, for a mesh with an absorbed row, what the side met absorbs) from
     ``photon.out_k[n_out]`` / ``photon.out_w[n_out]`` on; returns the new count."""
     vx, vy, vz, nx, ny, nz, mode, m, vscale, vtri = v
+    t, d2c, tscale = pick
+    u1, u2, u3 = u
+    vmag = max(abs(vx), abs(vy), abs(vz), vscale)
     contrib, out_k, out_w = photon.contrib, photon.out_k, photon.out_w
     counters, nee_stats = stats.counters, stats.nee_stats
     n_bands = w.shape[0]

@@ -196,6 +196,5 @@ def organ_zone_event(v, n_draw, stat, geo, mat, sens, tgt, organs, photon, stats
             continue
         u4, u5, u6 = uniform(state), uniform(state), uniform(state)
         y = Vertex(yx, yy, yz, kx, ky, kz, V_SURFACE, np.int64(m_y), ymag + vmag, k)
-        n_out = target_event(y, max(abs(yx), abs(yy), abs(yz), ymag + vmag), t, d2c, 1.0, w2, u4, u5, u6, stat,
-                             geo, mat, sens, tgt, photon, stats, n_out)
+        n_out = target_event(y, (t, d2c, 1.0), w2, (u4, u5, u6), stat, geo, mat, sens, tgt, photon, stats, n_out)
     return n_out
