@@ -90,7 +90,8 @@ INV_4PI = 1.0 / (4.0 * math.pi)
 
 
 @helper
-def _tri_point(a, u1, u2):
+def tri_point(a, u1, u2):
+    """A point uniform on triangle ``a`` (3, 3) from two uniforms: ``(x, y, z)``."""
     su = math.sqrt(u1)
     b0, b1 = 1.0 - su, u2 * su
     b2 = 1.0 - b0 - b1
@@ -100,11 +101,26 @@ def _tri_point(a, u1, u2):
 
 
 @helper
+def point_by_solid_angle(ox, oy, oz, a, mx, my, mz, u1, u2):
+    """The point of triangle ``a`` (3, 3) of unit normal m met in a direction from o uniform in the triangle's
+    solid angle (:func:`kernel.sampling.spherical_triangle`): ``(x, y, z, Ω)``, Ω = 0 where there is none
+    (the triangle seen edge-on)."""
+    sx, sy, sz, om = spherical_triangle(ox, oy, oz, a[0], a[1], a[2], u1, u2)
+    den = sx * mx + sy * my + sz * mz
+    if om == 0.0 or den == 0.0:
+        return ox, oy, oz, 0.0
+    tt = ((a[0, 0] - ox) * mx + (a[0, 1] - oy) * my + (a[0, 2] - oz) * mz) / den
+    if not tt > 0.0:
+        return ox, oy, oz, 0.0
+    return ox + tt * sx, oy + tt * sy, oz + tt * sz, om
+
+
+@helper
 def mesh_point(t, u1, u2, u3, tgt, geo):
     """A point uniform on mesh target t (by area) from three uniforms: ``(triangle, x, y, z)``; u3 picks the
     triangle from t's cumulative areas ``tgt.tri_cdf[tgt.first[t] : tgt.first[t] + tgt.count[t]]``."""
     g = tgt.tri[search_cdf(tgt.tri_cdf, tgt.first[t], tgt.first[t] + tgt.count[t] - 1, u3)]
-    px, py, pz = _tri_point(geo.verts[g], u1, u2)
+    px, py, pz = tri_point(geo.verts[g], u1, u2)
     return g, px, py, pz
 
 
@@ -436,16 +452,9 @@ def target_event(v, pick, w, u, stat, geo, mat, sens, tgt, photon, stats, n_out)
                 vx, vy, vz, geo.verts[g]) else 0.0
         mx, my, mz = geo.normal[g, 0], geo.normal[g, 1], geo.normal[g, 2]
         if om_total > 0.0:                     # a direction uniform in the triangle's solid angle
-            sx, sy, sz, om = spherical_triangle(vx, vy, vz, geo.verts[g, 0], geo.verts[g, 1], geo.verts[g, 2],
-                                                u1, u2)
-            den = sx * mx + sy * my + sz * mz
-            if om == 0.0 or den == 0.0:
+            px, py, pz, om = point_by_solid_angle(vx, vy, vz, geo.verts[g], mx, my, mz, u1, u2)
+            if om == 0.0:
                 return n_out
-            tt = ((geo.verts[g, 0, 0] - vx) * mx + (geo.verts[g, 0, 1] - vy) * my
-                  + (geo.verts[g, 0, 2] - vz) * mz) / den
-            if not tt > 0.0:
-                return n_out
-            px, py, pz = vx + tt * sx, vy + tt * sy, vz + tt * sz
             omega = om_total if near and tgt.count[t] <= EXACT_TRIANGLES else om * om_total
     dx, dy, dz = px - vx, py - vy, pz - vz
     dist2 = dx * dx + dy * dy + dz * dz

@@ -19,7 +19,7 @@ import numpy as np
 
 from .importance import cluster_cdf, draw
 from .jit import helper
-from .nee import target_event, view_factors
+from .nee import point_by_solid_angle, target_event, tri_point, view_factors
 
 ZONE_BY_AREA = 0.2    # the share of zone points drawn uniformly by area (the rest by solid angle seen from the target)
 from .embree import GEOM_ID, INVALID_ID, PRIM_ID, RAYHIT, ARGS
@@ -28,7 +28,7 @@ from .rays import magnitude, set_ray
 from .records import T_MESH2, V_ISOTROPIC, V_LAMBERT, V_SURFACE, OrganZones, Vertex
 from .targets import cluster_sums
 from .rng import uniform
-from .sampling import search_cdf, spherical_triangle
+from .sampling import search_cdf
 from .tallies import C_SHADOW
 
 
@@ -129,22 +129,12 @@ def organ_zone_event(v, n_draw, stat, geo, mat, sens, tgt, organs, photon, stats
         k = oz.tri[i]
         a = geo.verts[k]
         kx, ky, kz = geo.normal[k, 0], geo.normal[k, 1], geo.normal[k, 2]
-        if by_angle:          # a direction from the target's centre uniform in the triangle's solid angle
-            sx, sy, sz, om = spherical_triangle(cx, cy, cz, a[0], a[1], a[2], u1, u2)
-            den = sx * kx + sy * ky + sz * kz
-            if om == 0.0 or den == 0.0:
+        if by_angle:          # in a direction from the target's centre uniform in the triangle's solid angle
+            yx, yy, yz, om = point_by_solid_angle(cx, cy, cz, a, kx, ky, kz, u1, u2)
+            if om == 0.0:
                 continue
-            tt = ((a[0, 0] - cx) * kx + (a[0, 1] - cy) * ky + (a[0, 2] - cz) * kz) / den
-            if not tt > 0.0:
-                continue
-            yx, yy, yz = cx + tt * sx, cy + tt * sy, cz + tt * sz
-        else:                 # a point uniform on the triangle
-            su = math.sqrt(u1)
-            b0, b1 = 1.0 - su, u2 * su
-            b2 = 1.0 - b0 - b1
-            yx = b0 * a[0, 0] + b1 * a[1, 0] + b2 * a[2, 0]
-            yy = b0 * a[0, 1] + b1 * a[1, 1] + b2 * a[2, 1]
-            yz = b0 * a[0, 2] + b1 * a[1, 2] + b2 * a[2, 2]
+        else:                 # uniform on the triangle
+            yx, yy, yz = tri_point(a, u1, u2)
         ex, ey, ez = yx - cx, yy - cy, yz - cz
         d2c = ex * ex + ey * ey + ez * ez
         if not (d2c < tgt.near_r2[t] and d2c > 0.0):
