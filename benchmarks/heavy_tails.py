@@ -38,10 +38,13 @@ def main():
     ap.add_argument("--photons", type=float, default=1.6e7)
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--show", type=int, default=8, help="sensors shown with their largest chunks")
+    ap.add_argument("--sensors", type=int, nargs="*", default=[], help="sensors whose σ²·N is printed")
+    ap.add_argument("--worst", type=int, default=0, help="the sensors of largest σ²·N at the last N printed")
     args = ap.parse_args()
     chamber = load_scene(resolve_scene(args.scene))
     ks = simulate.KernelScene(chamber, estimator="nee")
-    ks.prune_next_events()
+    report = ks.prune_next_events()
+    print("switched off:", ", ".join(report.get("off", [])) or "none")
     records = ks.records()
     n_sens, chunk = ks.n_sensors, simulate.CHUNK
     n_chunks = int(args.photons) // chunk
@@ -69,7 +72,13 @@ def main():
     print("N:            " + "  ".join("%9.2g" % (k * chunk) for k in marks))
     print("median σ²·N:  " + "  ".join("%9.1f" % np.median(row) for row in table))
     print("max σ²·N:     " + "  ".join("%9.1f" % row.max() for row in table))
+    print("p90 σ²·N:     " + "  ".join("%9.1f" % np.percentile(row, 90) for row in table))
     print("sensors > 200:" + "  ".join("%9d" % (row > 200).sum() for row in table))
+    for s in args.sensors:
+        print("sensor %3d:   " % s + "  ".join("%9.1f" % row[s] for row in table))
+    if args.worst:
+        order = np.argsort(table[-1])[::-1][:args.worst]
+        print("largest σ²·N at the last N: " + ", ".join("%d %s %.0f" % (s, np.array2string(np.asarray(chamber.sensors.center[s]), precision=0), table[-1, s]) for s in order))
     growth = table[-1] / np.maximum(table[0], 1e-300)
     pos = chamber.sensors.center if hasattr(chamber.sensors, "center") else None
     print("\nsensors whose σ²·N grows most (first N -> last), with their largest chunk sums against the mean:")

@@ -22,14 +22,37 @@ from .tallies import C_SHADOW
 
 
 @helper
+def plane_importance(vx, vy, vz, pl, mir):
+    """How much mirror plane ``pl`` can matter to next events through it from point v: its specular reflectance
+    ``mir.spec[pl]`` times an upper bound of the solid angle it subtends at v, A |s| / d³ (area A, v at
+    signed distance s from the plane and at least d from the plane's bounding box: every point of the plane is
+    at least d away and seen at |cos| = |s| / r ≤ |s| / d), capped at 2π.  Zero where no reflection on the
+    plane can join v to a target: v in the plane, or behind a one-sided mirror.  Drawing planes in proportion
+    to it (:func:`image_event`) spends the events on the planes beside v: a strip of aluminium right above
+    a wall vertex, drawn as rarely as a far wall, made rare deposits of a whole photon's weight."""
+    mx, my, mz = mir.normal[pl, 0], mir.normal[pl, 1], mir.normal[pl, 2]
+    sv = (vx - mir.point[pl, 0]) * mx + (vy - mir.point[pl, 1]) * my + (vz - mir.point[pl, 2]) * mz
+    if sv == 0.0 or (mir.one_sided[pl] != 0 and sv < 0.0):
+        return 0.0
+    box = mir.box
+    cx = min(max(vx, box[pl, 0, 0]), box[pl, 1, 0])      # the nearest point of the plane's bounding box
+    cy = min(max(vy, box[pl, 0, 1]), box[pl, 1, 1])
+    cz = min(max(vz, box[pl, 0, 2]), box[pl, 1, 2])
+    d2 = (vx - cx) ** 2 + (vy - cy) ** 2 + (vz - cz) ** 2
+    s = abs(sv)
+    d2 = max(d2, s * s)
+    return mir.spec[pl] * min(2.0 * math.pi, mir.area[pl] * s / (d2 * math.sqrt(d2)))
+
+
+@helper
 def image_event(v, n_draw, stat0, geo, mat, sens, tgt, mir, photon, stats):
     """Next events through one perfect mirror: the expected light that the segment leaving vertex ``v``
     (:class:`~kernel.records.Vertex`) brings to a target (transparent sensor or mesh) after one specular
     reflection on a mirror plane (the image method).
 
     For ``n_draw`` draws (a random whole number whose mean is ``mir.picks``, :func:`kernel.rng.n_draws`): a
-    target t (uniform over the targets) and a mirror plane P (``mir.plane[k]``, k drawn from the cumulative
-    ``mir.cdf``; its weight ``mir.inv_p[k]`` = 1 / p_k); a point x on t (a disc's by solid angle as seen from
+    target t (uniform over the targets) and a mirror plane P (one of ``mir.plane``, drawn with probability p_k
+    in proportion to :func:`plane_importance` at v, computed once for the draws); a point x on t (a disc's by solid angle as seen from
     v's image, a quad's or a mesh's by area), its image x' across P; the ray v → x' must first meet a
     triangle of P (after the coplanar pick, as a photon would), from a side whose material is a perfect
     mirror, and the leg from there to x must be free (for a mesh: the first surface met is the mesh, at x,
@@ -53,12 +76,22 @@ def image_event(v, n_draw, stat0, geo, mat, sens, tgt, mir, photon, stats):
     n_mir = mir.plane.shape[0]
     if n_tgt == 0 or n_mir == 0 or n_draw <= 0 or not picks > 0.0:
         return 0
+    plane_cdf = photon.plane_cdf
+    total = 0.0
+    for j in range(n_mir):
+        total += plane_importance(vx, vy, vz, mir.plane[j], mir)
+        plane_cdf[j] = total
+    if not total > 0.0:
+        return 0
     scale = n_tgt / picks
     vmag = max(abs(vx), abs(vy), abs(vz), vscale)
     n_out = 0
     for _ in range(n_draw):
         t = min(int(uniform(state) * n_tgt), n_tgt - 1)
-        k = search_cdf(mir.cdf, 0, mir.cdf.shape[0] - 1, uniform(state))     # a plane, by the pilot's weights (or uniformly)
+        k = search_cdf(plane_cdf, 0, n_mir - 1, uniform(state) * total)     # a plane, by its importance at v
+        p_k = (plane_cdf[k] - (plane_cdf[k - 1] if k > 0 else 0.0)) / total
+        if not p_k > 0.0:
+            continue
         pl = mir.plane[k]
         u1, u2, u3 = uniform(state), uniform(state), uniform(state)
         kind = tgt.kind[t]
@@ -138,7 +171,7 @@ def image_event(v, n_draw, stat0, geo, mat, sens, tgt, mir, photon, stats):
                 f *= cos_v / math.pi
             else:
                 f *= mat.prob[m, 0 if cos_v > 0.0 else 2, b] * abs(cos_v) / math.pi
-            contrib[b] = w[b] * f * scale * mir.inv_p[k] * (omega if kind == T_DISC else tgt.area[t] * abs(cos_x) / L2)
+            contrib[b] = w[b] * f * scale / p_k * (omega if kind == T_DISC else tgt.area[t] * abs(cos_x) / L2)
             any_light = any_light or contrib[b] > 0.0
         if not any_light:
             continue

@@ -111,9 +111,10 @@ Targets = namedtuple("Targets", [
 
 Mirrors = namedtuple("Mirrors", [
     "picks",         # float: next events through a mirror per next-event vertex, on average (0: none)
-    "plane",         # int32: the planes in use, drawn with
-    "cdf",           # float64: cumulative probabilities, and weighted by
-    "inv_p",         # float64: 1 / their probability
+    "plane",         # int32: the planes in use, drawn at each vertex in proportion to spec · an upper bound of the
+                     # solid angle they subtend there (kernel.images.plane_importance)
+    "spec",          # (Q,) float64: the largest specular reflectance of each plane's sides (over bands)
+    "area",          # (Q,) float64: its area (scene units²)
     "on",            # (Q,) uint8: the planes in use, as flags
     "point",         # (Q, 3) float64: a point of each plane
     "normal",        # (Q, 3) float64: its unit normal
@@ -204,6 +205,7 @@ Photon = namedtuple("Photon", [
     "cdf",           # (n + K,) float64: cumulative importances at a vertex: of the targets within each cluster
                      # (by position in Targets.cluster_member), then of the K clusters (kernel.nee.pick_by_importance)
     "exact",         # (K,) uint8: the clusters whose targets' importances were summed at this vertex
+    "plane_cdf",     # (P,) float64: cumulative importances of the mirror planes in use at a vertex (kernel.images)
 ])
 
 Accumulator = namedtuple("Accumulator", [

@@ -116,7 +116,7 @@ def work_arrays(scene, nee, scratch, tallies):
     mat = scene.materials
     n_bands = mat.prob.shape[2]
     n_rows = tallies.tally.shape[0]
-    n_slots, n_cv, n_cdf, n_clusters = 1, 0, 0, 0
+    n_slots, n_cv, n_cdf, n_clusters, n_planes = 1, 0, 0, 0, 0
     if nee is not None:
         tgt = nee.targets
         n_tgt = tgt.kind.shape[0]
@@ -124,6 +124,7 @@ def work_arrays(scene, nee, scratch, tallies):
         organ_picks = 0.0
         if nee.organs is not None:
             n_cdf, n_clusters, organ_picks = n_tgt, nee.organs.clusters.radius.shape[0], nee.organs.zones.picks
+        n_planes = nee.mirrors.plane.shape[0]
         n_draw = 1 + int(max(nee.mirrors.picks, nee.zones.picks, organ_picks))
         n_slots = 3 * (n_tgt + tgt.picks) + 2 * OWN_SAMPLES * n_near + 2 * n_draw   # own events and picks (up to
         n_cv = nee.control.row.shape[0]          # 3 deposits each, a mesh's own events 2 each), or image / zone events
@@ -132,7 +133,7 @@ def work_arrays(scene, nee, scratch, tallies):
     photon = Photon(scratch, np.zeros(1, dtype=np.uint64), np.empty(n_bands), np.empty(n_bands), np.empty(n_bands),
                     np.empty(n_bands), np.empty(n_slots, dtype=np.int64), np.empty((n_slots, n_bands)),
                     np.empty(CAND_CAP + n_flush, dtype=np.int64), np.empty(max(1, n_cdf + n_clusters)),
-                    np.zeros(max(1, n_clusters), dtype=np.uint8))
+                    np.zeros(max(1, n_clusters), dtype=np.uint8), np.empty(max(1, n_planes)))
     accum = Accumulator(np.zeros((n_rows, n_bands)), np.zeros(n_rows, dtype=np.uint8), np.empty(n_rows, dtype=np.int64),
                         np.empty(n_bands))
     cvw = ControlWork(np.zeros((n_bands, n_cv)), np.zeros((n_bands, n_cv)), np.zeros((n_bands, n_bands, n_cv)),

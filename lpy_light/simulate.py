@@ -29,7 +29,7 @@ from .kernel.targets import build_targets, cluster_sums, target_clusters
 from .kernel.trace import trace_chunk
 from .kernel.zones import near_zones
 from .materials import SPECULAR_R, sampling_tables
-from .geometry import coplanar_partners, mirror_planes, partner_free_boxes, plane_ids, triangle_normals
+from .geometry import coplanar_partners, mirror_planes, partner_free_boxes, plane_ids, triangle_areas, triangle_normals
 
 CHUNK = 1 << 15
 ESTIMATORS = ("weighted", "analog", "nee")
@@ -256,7 +256,16 @@ class KernelScene:
         self.mir_box = np.ascontiguousarray(box + np.array([-1.0, 1.0])[None, :, None] * self._cop_pad)
         self.mir_one_sided = one_sided.astype(np.uint8)
         self.mir_on = np.ones(len(self.mir_point), np.uint8)
-        self.mir_weight = np.ones(len(self.mir_point))    # how often each plane is drawn (set by the pilot)
+        # each plane's largest specular reflectance (its sides', over bands) and its area: with the distance
+        # from a vertex, how often the plane is drawn there (kernel.images.plane_importance)
+        spec_b = np.array([m.events[SPECULAR_R].max() for m in chamber.materials] + [0.0])
+        side_spec = np.maximum(spec_b[mats[:, 0]], np.where(chamber.tri_two_sided[order], spec_b[mats[:, 1]], 0.0)) \
+            if len(order) else np.zeros(0)
+        on_plane = self._chamber_plane >= 0
+        self.mir_spec = np.zeros(len(self.mir_point))
+        np.maximum.at(self.mir_spec, self._chamber_plane[on_plane], side_spec[on_plane])
+        self.mir_area = np.bincount(self._chamber_plane[on_plane], weights=triangle_areas(tris[order][on_plane]),
+                                    minlength=len(self.mir_point)).astype(np.float64)
         sensors = chamber.sensors
         self.scene = embree.EmbreeScene(one_sided=tris[one], two_sided=tris[two],
                                         sensors=sensors.bounding_triangles() if len(sensors) else None)
@@ -373,7 +382,7 @@ class KernelScene:
             self.organ_events = OrganEvents(clusters, weight, cluster_sums(weight, clusters), zones)
 
     def prune_next_events(self, photons: int = 8192, max_share: float = 0.0, seed: int = 987654321,
-                          threads=None, min_plane_share: float = 0.01, min_rays: int = 256, keep=()) -> dict:
+                          threads=None, min_rays: int = 256, keep=()) -> dict:
         """Switch off next events from vertices whose shadow rays bring (almost) nothing.
 
         A pilot run sums, per material and per emitter element, the shadow rays
@@ -393,12 +402,13 @@ class KernelScene:
         counted, and held most of their variance: PAR spread 10-25 % over seeds
         against 1-7 % with it on); a source with fewer rays costs next to nothing
         anyway.  Materials named in ``keep`` (the plant's organs) stay on.
-        Mirror planes are switched off only when they brought less than
-        ``min_plane_share`` of the light of all next events through mirrors (not
-        by ``max_share``: a plane's light is then counted, rarely and at a high
-        price, while its events cost only when drawn): a plane drawn rarely but
-        able to light a sensor makes rare, very large deposits (1 / its draw
-        probability), worse than counting its light.
+        Mirror planes are switched off only when the pilot brought no light
+        through them (not by ``max_share``: a plane's light is then counted,
+        rarely and with a photon's whole weight, while its events cost only
+        when drawn, and they are drawn by their importance at each vertex).
+        Switching off the planes that brought under 1 % of it, as before the
+        twelfth session, left the aluminium strips under the Angers ceiling to
+        counting: most of the median sensor's variance.
         Returns ``{name: (share of shadow rays, share of deposit)}`` of the pilot
         and the names switched off under ``"off"``.
         """
@@ -407,7 +417,6 @@ class KernelScene:
         self.mat_nee[:] = 1
         self.emit_nee[:] = 1
         self.mir_on[:] = 1
-        self.mir_weight[:] = 1.0
         pilot = run(self, photons, seed=seed, threads=threads)
         if pilot.interrupted:
             raise KeyboardInterrupt      # Ctrl-C during the pilot: stop, do not trace on with half a pilot
@@ -429,16 +438,10 @@ class KernelScene:
             lost += weight[i]
         self.mat_nee = np.ascontiguousarray(on[:M], dtype=np.uint8)
         self.emit_nee = np.ascontiguousarray(on[M:M + E], dtype=np.uint8)
-        w_planes = weight[M + E:]
-        if w_planes.sum() > 0:
-            on[M + E:] &= w_planes >= min_plane_share * w_planes.sum()
+        # mirror planes: off when the pilot drew none or brought nothing through them (each plane is drawn at
+        # a vertex by its importance there, so one the pilot never drew is one no vertex faces)
+        on[M + E:] &= weight[M + E:] > 0.0
         self.mir_on = np.ascontiguousarray(on[M + E:], dtype=np.uint8)
-        # planes in use are then drawn in proportion to what they brought in the pilot, mixed with a
-        # uniform share so that none is starved (any positive probabilities keep the events unbiased)
-        w_planes = weight[M + E:]
-        if self.mir_on.any() and w_planes[self.mir_on > 0].sum() > 0:
-            mean = w_planes[self.mir_on > 0].mean()
-            self.mir_weight = np.where(self.mir_on > 0, w_planes + 0.25 * mean, 0.0)
         names = ([m.name for m in self.materials] + ["lamp element %d" % e for e in range(E)]
                  + ["mirror plane %d" % k for k in range(len(self.mir_on))])
         report = {names[i]: (float(cast[i] / total_c), float(weight[i] / total_w)) for i in range(len(stats))
@@ -479,16 +482,6 @@ class KernelScene:
             self._assemble(np.zeros((0, 3, 3)), np.zeros((0, 2), np.int32), np.zeros(0, np.int32))
         self.scene.set_organs(tris, one_sided=self.one_sided_organs)
 
-    def _mirror_draw(self):
-        """(planes in use (int32), their cumulative draw probabilities, 1 / probability) for image events."""
-        on = np.flatnonzero(self.mir_on).astype(np.int32)
-        if len(on) == 0:
-            return on, np.ones(0), np.ones(0)
-        p = self.mir_weight[on] / self.mir_weight[on].sum()
-        cdf = np.cumsum(p)
-        cdf[-1] = 1.0 + 1e-12
-        return on, cdf, 1.0 / p
-
     def records(self):
         """The kernel's records of this scene as it stands (:mod:`lpy_light.kernel.records`), with the current
         settings (``nee_*``, the sources and mirror planes switched on): ``(Scene, NextEvents or None)``, None
@@ -504,8 +497,9 @@ class KernelScene:
         targets = self.targets._replace(on_sensors=bool(self.nee_sensors), on_receivers=bool(self.nee_receivers),
                                         picks=int(self.nee_picks), from_material=u8(self.mat_nee),
                                         from_emitter=u8(self.emit_nee))
-        plane, cdf, inv_p = self._mirror_draw()
-        mirrors = Mirrors(float(self.nee_images) if nee else 0.0, i32(plane), f64(cdf), f64(inv_p), u8(self.mir_on),
+        plane = np.flatnonzero(self.mir_on).astype(np.int32)
+        mirrors = Mirrors(float(self.nee_images) if nee else 0.0, i32(plane), f64(self.mir_spec), f64(self.mir_area),
+                          u8(self.mir_on),
                           f64(self.mir_point), f64(self.mir_normal), f64(self.mir_box), u8(self.mir_one_sided))
         zones = self.zones._replace(picks=float(self.nee_zones) if self.nee_sensors else 0.0)
         scene = Scene(geometry, materials, self.emit, self.sens)

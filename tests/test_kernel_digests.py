@@ -134,16 +134,16 @@ def cases(tmp: Path) -> dict:
 # importance over clusters and organ zone events (issue 24): Angers unchanged
 PINNED = {
     "angers-weighted": "5b880b19bca006d238e3918ea965cc5ada7a727bb738cfbc354761ae687b9b81",
-    "angers-nee": "3ffe0840d0168ce8834b4c1c71d6ea64ceb87481552907c1433d9f509cfc828b",
+    "angers-nee": "c7590681dfef54c223a2afd0cfd6d5dc7f8e25fe23ffa38a7843e63cc26d9705",
     "angers-analog": "42755ef2f42771a1914394682bdc4faa00ac2ff8f63b741203b172f7811dec57",
-    "angers-12bands-nee": "d0ad9cfe3706c22b070ec8f33566712797c0d7f8f1b4e68cae72cea3c425e9d6",
+    "angers-12bands-nee": "0a2aea0521149c7e2199ed196dc5c00fbbcc717f104fcaeb3b778f3fac6a4268",
     "angers-12bands-analog": "a24c0e3a3c84f50ed8cacba5f951b418a0bc495c9359bb2ee92a5f37ffab2342",
-    "room-line-nee": "3fdd70638641a275b9babdec39c97ebdc56758caaee588755db614315ecf264b",
-    "room-line-nee-all": "135b704597c10417a262797c771c0523bd7de5703f7bcb74c0be255c7d3c97d1",
+    "room-line-nee": "4c43362b22a7fb29b4f308fcb8cdfdcdb5d068199cbb719f3266bc7540b0abec",
+    "room-line-nee-all": "078987e6f0a78bece5b2b9c6bb963c8b018be9bd1d4bd60dded55665fdff0758",
     "room-line-weighted": "c7d42d71b5c767043f1e8ec90838e2f94856d9283c8c561cd7be56c0fa3a5a6b",
     "room-lambertian-nee": "dd12af7cbbbfac8ad4bcdc87cfd3a4f252703757db83e628fd737a2da2776b93",
     "room-lambertian-analog": "22c08b31f224eb5c161b766a925e443d33ca195c3ccb7f1120776b4a908fcb42",
-    "rose-nee": "eda7996c935e84f0d10db23e25e5b1a28848e70725ad3ddca8498efbb3e41dfe",
+    "rose-nee": "a49ea9c104f4c7f541d1a8b1d9389b1066079aa4096db53c0c7796e603d61884",
 }
 
 
