@@ -111,6 +111,7 @@ Targets = namedtuple("Targets", [
 
 Mirrors = namedtuple("Mirrors", [
     "picks",         # float: next events through a mirror per next-event vertex, on average (0: none)
+    "picks2",        # float: next events through two mirrors per next-event vertex, on average (0: none)
     "plane",         # int32: the planes in use, drawn at each vertex in proportion to spec · an upper bound of the
                      # solid angle they subtend there (kernel.images.plane_importance)
     "spec",          # (Q,) float64: the largest specular reflectance of each plane's sides (over bands)

@@ -45,7 +45,7 @@ from numba import njit
 from .control import add_control, control_deposits, control_products, fold_control
 from .embree import ARGS, CAND, CAND_CAP, CAND_COUNT, GEOM_ID, HIT_U, HIT_V, INVALID_ID, PRIM_ID, RAYHIT, TFAR
 from .emission import emit, pick_element
-from .images import image_counted, image_event
+from .images import double_image_counted, double_image_event, image_counted, image_event
 from .jit import helper
 from .nee import OWN_SAMPLES, next_event
 from .organ_zones import organ_zone_event
@@ -125,7 +125,7 @@ def work_arrays(scene, nee, scratch, tallies):
         if nee.organs is not None:
             n_cdf, n_clusters, organ_picks = n_tgt, nee.organs.clusters.radius.shape[0], nee.organs.zones.picks
         n_planes = nee.mirrors.plane.shape[0]
-        n_draw = 1 + int(max(nee.mirrors.picks, nee.zones.picks, organ_picks))
+        n_draw = 1 + int(max(nee.mirrors.picks, nee.mirrors.picks2, nee.zones.picks, organ_picks))
         n_slots = 3 * (n_tgt + tgt.picks) + 2 * OWN_SAMPLES * n_near + 2 * n_draw   # own events and picks (up to
         n_cv = nee.control.row.shape[0]          # 3 deposits each, a mesh's own events 2 each), or image / zone events
     flush_start = scene.sensors.flush_start
@@ -179,6 +179,7 @@ def trace_photons(scene, nee, organs, seed, first, count, tallies, stats, photon
         n_tgt = tgt.kind.shape[0]
         control = cv.on
         img_on = mir.picks > 0.0 and (tgt.on_sensors or tgt.on_receivers) and n_tgt > 0 and mir.plane.shape[0] > 0
+        img2_on = img_on and mir.picks2 > 0.0 and mir.plane.shape[0] > 1
         zone_on = zones.picks > 0.0 and tgt.on_sensors and zones.target_plane.shape[0] > 0 and 0 < tgt.picks < n_tgt
         organ_on = False
         if organs is not None:
@@ -203,6 +204,7 @@ def trace_photons(scene, nee, organs, seed, first, count, tallies, stats, photon
         depth = 0
         vx0, vy0, vz0 = ox, oy, oz   # the vertex the current segment starts at
         seg_plane = -1          # the current segment leaves this mirror plane, reflected, after a next-event vertex
+        seg_plane2 = -1         # or leaves this one after seg_plane (two reflections after that vertex)
         wx, wy, wz = ox, oy, oz  # that next-event vertex
         # the lamp is the photon's first vertex; from there on, each surface hit (one iteration each)
         events = False           # does the vertex make next events?
@@ -216,6 +218,7 @@ def trace_photons(scene, nee, organs, seed, first, count, tallies, stats, photon
                                      # events served (those of targets whose near radius is at most that long)
         near = np.int64(0)           # its triangle has near discs (control_deposits)
         room = max_depth > 0         # a further bounce is allowed (events through a mirror or a zone need one)
+        room2 = max_depth > 1        # two more (events through two mirrors)
         on_surface = False
         m, tri, rec, rec_analog = np.int64(0), np.int64(-1), np.int32(-1), False    # the hit (set below)
         px = py = pz = nx = ny = nz = pscale = 0.0
@@ -230,6 +233,10 @@ def trace_photons(scene, nee, organs, seed, first, count, tallies, stats, photon
                 n_img = n_draws(mir.picks, state) if img_on and room else 0
                 if n_img > 0:
                     n_out = image_event(vertex, n_img, stat_planes, geo, mat, sens, tgt, mir, photon, stats)
+                    nh = record_all(n_out, nh, photon, accum)
+                n_img = n_draws(mir.picks2, state) if img2_on and room2 else 0
+                if n_img > 0:      # and through two mirrors
+                    n_out = double_image_event(vertex, n_img, stat_planes, geo, mat, sens, tgt, mir, photon, stats)
                     nh = record_all(n_out, nh, photon, accum)
                 n_zone = n_draws(zones.picks, state) if zone_on and room else 0
                 if n_zone > 0:     # and through one diffuse vertex beside a disc
@@ -257,13 +264,16 @@ def trace_photons(scene, nee, organs, seed, first, count, tallies, stats, photon
                     nh = record(fate0 + m, w, nh, accum)
                     break
                 depth += 1
-                seg_plane = -1
+                first_plane = seg_plane if seg_plane2 < 0 else -1    # the segment ending here had one reflection
+                seg_plane = seg_plane2 = -1
                 if nee is not None:
                     pl = geo.mirror_plane[tri]
-                    if img_on and ev == SPECULAR_R and after_diffuse and pl >= 0 and mir.on[pl] != 0 \
-                            and math.isinf(mat.phong[m]):
-                        seg_plane = pl                  # a mirror right after a next-event vertex (vx0)
-                        wx, wy, wz = vx0, vy0, vz0
+                    if img_on and ev == SPECULAR_R and pl >= 0 and mir.on[pl] != 0 and math.isinf(mat.phong[m]):
+                        if after_diffuse:
+                            seg_plane = pl              # a mirror right after a next-event vertex (vx0)
+                            wx, wy, wz = vx0, vy0, vz0
+                        elif img2_on and first_plane >= 0 and first_plane != pl:
+                            seg_plane, seg_plane2 = first_plane, pl     # a second mirror after it
                     after_diffuse = n_tgt > 0 and tgt.from_material[m] != 0 and (ev == DIFFUSE_R or ev == DIFFUSE_T)
                 vx0, vy0, vz0 = px, py, pz
                 u1, u2 = uniform(state), uniform(state)
@@ -342,7 +352,11 @@ def trace_photons(scene, nee, organs, seed, first, count, tallies, stats, photon
                 if nee is not None:
                     counted = _counted(skip_sensors, sensor_target[s] if skip_sensors else -1, vx0, vy0, vz0, tgt)
                     if counted and seg_plane >= 0 and sensor_target[s] >= 0:     # covered by image events?
-                        counted = image_counted(sensor_target[s], wx, wy, wz, seg_plane, mir, tgt)
+                        if seg_plane2 < 0:
+                            counted = image_counted(sensor_target[s], wx, wy, wz, seg_plane, mir, tgt)
+                        else:
+                            counted = double_image_counted(sensor_target[s], wx, wy, wz, seg_plane, seg_plane2,
+                                                           mir, tgt)
                 if counted and _inside(s, ox + ts * dx, oy + ts * dy, oz + ts * dz, sens):
                     nh = record(s, w, nh, accum)
 
@@ -382,7 +396,11 @@ def trace_photons(scene, nee, organs, seed, first, count, tallies, stats, photon
                 rec_analog = rec >= 0 and _counted(skip_receivers, receiver_target[rec] if skip_receivers else -1,
                                                    vx0, vy0, vz0, tgt)
                 if rec_analog and seg_plane >= 0 and receiver_target[rec] >= 0:      # covered by image events?
-                    rec_analog = image_counted(receiver_target[rec], wx, wy, wz, seg_plane, mir, tgt)
+                    if seg_plane2 < 0:
+                        rec_analog = image_counted(receiver_target[rec], wx, wy, wz, seg_plane, mir, tgt)
+                    else:
+                        rec_analog = double_image_counted(receiver_target[rec], wx, wy, wz, seg_plane, seg_plane2,
+                                                          mir, tgt)
             if rec_analog:
                 nh = record(n_sens + rec, w, nh, accum)
             if depth >= max_depth:
@@ -406,6 +424,7 @@ def trace_photons(scene, nee, organs, seed, first, count, tallies, stats, photon
                 stat = m
                 near = 1 if tgt.near_start[tri + 1] > tgt.near_start[tri] else 0
                 room = depth + 1 < max_depth
+                room2 = depth + 2 < max_depth
             on_surface = True
         if pb < n_pass - 1:
             continue         # the photon's other bands' paths still to come: one flush for all

@@ -220,6 +220,7 @@ class KernelScene:
         self.nee_batch = 8          # photons per batch of the control variate's products between bands
         self.nee_receiver_mask = None   # (R,) bool: receivers that are next-event targets (None: all)
         self.nee_images = 0.5       # next events through a perfect mirror per vertex, on average (0: none)
+        self.nee_images2 = 0.25     # next events through two perfect mirrors per vertex, on average (0: none)
         self.nee_zones = 0.3        # two-step next events through the surface beside a disc, per vertex (0: none)
         self.nee_importance = True  # next events to organs: picks by importance (kernel.importance), organ zones
         self.nee_organ_zones = 0.5  # two-step next events through the organ surface beside an organ, per vertex
@@ -498,7 +499,7 @@ class KernelScene:
                                         picks=int(self.nee_picks), from_material=u8(self.mat_nee),
                                         from_emitter=u8(self.emit_nee))
         plane = np.flatnonzero(self.mir_on).astype(np.int32)
-        mirrors = Mirrors(float(self.nee_images) if nee else 0.0, i32(plane), f64(self.mir_spec), f64(self.mir_area),
+        mirrors = Mirrors(float(self.nee_images) if nee else 0.0, float(self.nee_images2) if nee else 0.0, i32(plane), f64(self.mir_spec), f64(self.mir_area),
                           u8(self.mir_on),
                           f64(self.mir_point), f64(self.mir_normal), f64(self.mir_box), u8(self.mir_one_sided))
         zones = self.zones._replace(picks=float(self.nee_zones) if self.nee_sensors else 0.0)

@@ -134,16 +134,16 @@ def cases(tmp: Path) -> dict:
 # importance over clusters and organ zone events (issue 24): Angers unchanged
 PINNED = {
     "angers-weighted": "5b880b19bca006d238e3918ea965cc5ada7a727bb738cfbc354761ae687b9b81",
-    "angers-nee": "c7590681dfef54c223a2afd0cfd6d5dc7f8e25fe23ffa38a7843e63cc26d9705",
+    "angers-nee": "793fcdff765279220c0e43c9115dcb01a4b84c4d2be964c709c5b4d5cf03a427",
     "angers-analog": "42755ef2f42771a1914394682bdc4faa00ac2ff8f63b741203b172f7811dec57",
-    "angers-12bands-nee": "0a2aea0521149c7e2199ed196dc5c00fbbcc717f104fcaeb3b778f3fac6a4268",
+    "angers-12bands-nee": "a35218313acdd03d8efe30afceef7d756fca9089a82d9904c7c46c33fa6dd397",
     "angers-12bands-analog": "a24c0e3a3c84f50ed8cacba5f951b418a0bc495c9359bb2ee92a5f37ffab2342",
-    "room-line-nee": "4c43362b22a7fb29b4f308fcb8cdfdcdb5d068199cbb719f3266bc7540b0abec",
-    "room-line-nee-all": "078987e6f0a78bece5b2b9c6bb963c8b018be9bd1d4bd60dded55665fdff0758",
+    "room-line-nee": "a78bfe1911f878781fc078b67529ca645ad4c159a7529e74138c708c4c4a1230",
+    "room-line-nee-all": "cc8aebfc4cfb4687e592fccdc6ab33728e5447b7f441f518ef56f928517583ab",
     "room-line-weighted": "c7d42d71b5c767043f1e8ec90838e2f94856d9283c8c561cd7be56c0fa3a5a6b",
     "room-lambertian-nee": "dd12af7cbbbfac8ad4bcdc87cfd3a4f252703757db83e628fd737a2da2776b93",
     "room-lambertian-analog": "22c08b31f224eb5c161b766a925e443d33ca195c3ccb7f1120776b4a908fcb42",
-    "rose-nee": "a49ea9c104f4c7f541d1a8b1d9389b1066079aa4096db53c0c7796e603d61884",
+    "rose-nee": "561210bf5661ad488cd62cdc2fab36d1ddd531c631893b081e39364754f537ee",
 }
 
 
