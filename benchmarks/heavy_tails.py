@@ -71,6 +71,7 @@ def main():
     table = np.array([sigma2n(k) for k in marks])
     print("N:            " + "  ".join("%9.2g" % (k * chunk) for k in marks))
     print("median σ²·N:  " + "  ".join("%9.1f" % np.median(row) for row in table))
+    print("mean σ²·N:    " + "  ".join("%9.1f" % row.mean() for row in table))
     print("max σ²·N:     " + "  ".join("%9.1f" % row.max() for row in table))
     print("p90 σ²·N:     " + "  ".join("%9.1f" % np.percentile(row, 90) for row in table))
     print("sensors > 200:" + "  ".join("%9d" % (row > 200).sum() for row in table))
