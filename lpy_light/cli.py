@@ -103,6 +103,9 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--nee-images", type=float, default=0.5, metavar="K",
                    help="with --estimator nee: next events through a perfect mirror per vertex, on average (default "
                         "0.5; 0 = none: light whose last bounce is specular is then counted)")
+    r.add_argument("--nee-images2", type=float, default=0.25, metavar="K",
+                   help="with --estimator nee: next events through two perfect mirrors per vertex, on average "
+                        "(default 0.25; 0 = none: light after two specular bounces is then counted)")
     r.add_argument("--nee-zones", type=float, default=0.3, metavar="K",
                    help="with --estimator nee: two-step next events per vertex through the surface right beside a "
                         "disc sensor (within 4 radii of a wall or table), on average (default 0.3; 0 = none: that "
@@ -176,6 +179,9 @@ def cmd_run(args) -> int:
     if not 0 <= args.nee_images <= 64:
         raise InputError("--nee-images must be in 0..64")
     kscene.nee_images = args.nee_images
+    if not 0 <= args.nee_images2 <= 64:
+        raise InputError("--nee-images2 must be in 0..64")
+    kscene.nee_images2 = args.nee_images2
     if not 0 <= args.nee_zones <= 64:
         raise InputError("--nee-zones must be in 0..64")
     kscene.nee_zones = args.nee_zones
@@ -245,7 +251,8 @@ def _trace_and_write(args, path, chamber, kscene, measured, ref, ref_band, execu
                                    chamber.spectrum, chamber.bands)
     extra, calibration, comparison = _after_run(args, chamber, result, norm, measured, ref, ref_band)
     if args.estimator == "nee":
-        extra["next_events"] = {"picks": kscene.nee_picks, "images": kscene.nee_images, "zones": kscene.nee_zones,
+        extra["next_events"] = {"picks": kscene.nee_picks, "images": kscene.nee_images,
+                                "images2": kscene.nee_images2, "zones": kscene.nee_zones,
                                 "zones_built": int(len(kscene.zones.target_plane)), "control": kscene.nee_control,
                                 "mirror_planes": int(kscene.mir_on.sum()),
                                 "sources_off": [m.name for m, on in zip(kscene.materials, kscene.mat_nee) if not on]}
