@@ -20,6 +20,7 @@ from .rng import uniform
 from .sampling import search_cdf
 from .tallies import C_SHADOW
 
+NO_EVENT = -2  # image_target_point: no event for this target from this image point
 MIX2 = 0.25    # events through two mirrors: each plane's importance plus this share of the mean (plane_cdf)
 
 
@@ -94,10 +95,14 @@ def in_box(x, y, z, pl, mir):
 def image_target_point(t, ix, iy, iz, u, geo, sens, tgt):
     """A point x on target t for an event through mirrors, whose unfolded source is the image point i:
     ``(g, x, y, z, nx, ny, nz, omega)``: a mesh's by area (g its triangle), a quad's by area, a disc's by solid
-    angle as seen from i (omega the estimator's factor, 0 when i is behind the disc: no event), g = -1 for
-    sensors; n is the surface's normal at x."""
+    angle as seen from i (omega the estimator's factor), g = -1 for sensors; n is the surface's normal at x.
+    g = :data:`NO_EVENT` when there is none: i within t's exclusion radius (the crossing is counted instead),
+    or behind a disc."""
     u1, u2, u3 = u
     kind = tgt.kind[t]
+    ex, ey, ez = ix - tgt.center[t, 0], iy - tgt.center[t, 1], iz - tgt.center[t, 2]
+    if ex * ex + ey * ey + ez * ez < tgt.img_near2[t]:
+        return NO_EVENT, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
     if kind >= T_MESH2:
         g, px, py, pz = mesh_point(t, u1, u2, u3, tgt, geo)
         return g, px, py, pz, geo.normal[g, 0], geo.normal[g, 1], geo.normal[g, 2], 0.0
@@ -105,6 +110,8 @@ def image_target_point(t, ix, iy, iz, u, geo, sens, tgt):
     omega = 0.0
     if kind == T_DISC:
         px, py, pz, omega = disc_point_by_solid_angle(ix, iy, iz, s, u1, u2, sens)
+        if omega == 0.0:
+            return NO_EVENT, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
     else:
         px, py, pz = sensor_point(kind, s, u1, u2, u3, sens)
     return -1, px, py, pz, sens.normal[s, 0], sens.normal[s, 1], sens.normal[s, 2], omega
@@ -247,12 +254,9 @@ def image_event(v, n_draw, stat0, geo, mat, sens, tgt, mir, photon, stats):
         ix, iy, iz, sv = reflect(vx, vy, vz, pl, mir)                   # v's image across P
         if not p_k > 0.0 or sv == 0.0 or (mir.one_sided[pl] != 0 and sv < 0.0):
             continue
-        ex, ey, ez = ix - tgt.center[t, 0], iy - tgt.center[t, 1], iz - tgt.center[t, 2]
-        if ex * ex + ey * ey + ez * ez < tgt.img_near2[t]:
-            continue                                   # too close (unfolded): the crossing is counted
         g, px, py, pz, snx, sny, snz, omega = image_target_point(t, ix, iy, iz, u, geo, sens, tgt)
         kind = tgt.kind[t]
-        if kind == T_DISC and omega == 0.0:
+        if g == NO_EVENT:
             continue
         jx, jy, jz, sx = reflect(px, py, pz, pl, mir)                   # x's image x'
         if sx * sv <= 0.0:
@@ -333,12 +337,9 @@ def double_image_event(v, n_draw, stat0, geo, mat, sens, tgt, mir, photon, stats
         bx, by, bz, sa2 = reflect(ax, ay, az, pl2, mir)                 # v'' = v' across P2
         if k2 == k1 or not p2 > 0.0 or sa2 == 0.0 or (mir.one_sided[pl2] != 0 and sa2 < 0.0):
             continue
-        ex, ey, ez = bx - tgt.center[t, 0], by - tgt.center[t, 1], bz - tgt.center[t, 2]
-        if ex * ex + ey * ey + ez * ez < tgt.img_near2[t]:
-            continue                                   # too close (unfolded): the crossing is counted
         g, px, py, pz, snx, sny, snz, omega = image_target_point(t, bx, by, bz, u, geo, sens, tgt)
         kind = tgt.kind[t]
-        if kind == T_DISC and omega == 0.0:
+        if g == NO_EVENT:
             continue
         jx, jy, jz, sx2 = reflect(px, py, pz, pl2, mir)                 # x' = x across P2
         if sx2 * sa2 <= 0.0:
