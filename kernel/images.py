@@ -13,9 +13,9 @@ Deposits in photons of weight, lengths in scene units, solid angles in steradian
 import math
 
 from .jit import helper
-from .nee import END_REL, INV_4PI, disc_point_by_solid_angle, mesh_point, sensor_point
+from .nee import END_REL, INV_4PI, deposit, disc_point_by_solid_angle, mesh_point, sensor_point
 from .rays import hit_on_plane, magnitude, seen_share, set_ray
-from .records import ABSORB, SPECULAR_R, T_DISC, T_MESH2
+from .records import SPECULAR_R, T_DISC, T_MESH2
 from .rng import uniform
 from .sampling import search_cdf
 from .tallies import C_SHADOW
@@ -140,7 +140,7 @@ def last_leg(target, hit, omag, rows, geo, mat, tgt, photon, stats, n_out):
     absorbed row), and to ``stats.nee_stats[rows]`` (found, weight).  Returns the new count."""
     t, g, px, py, pz, snx, sny, snz = target
     tri, hx, hy, hz, tnx, tny, tnz = hit
-    contrib, out_k, out_w = photon.contrib, photon.out_k, photon.out_w
+    contrib = photon.contrib
     offset_rel, kind, n_bands = geo.offset_rel, tgt.kind[t], contrib.shape[0]
     fx, fy, fz = px - hx, py - hy, pz - hz
     d2 = math.sqrt(fx * fx + fy * fy + fz * fz)
@@ -173,25 +173,9 @@ def last_leg(target, hit, omag, rows, geo, mat, tgt, photon, stats, n_out):
                        (px, py, pz))
     if share == 0.0:
         return n_out
-    out_k[n_out] = tgt.row[t]
-    r1, r2 = rows
     for b in range(n_bands):
         contrib[b] *= share
-        out_w[n_out, b] = contrib[b]
-        stats.nee_stats[r1, 2] += contrib[b]
-        if r2 != r1:
-            stats.nee_stats[r2, 2] += contrib[b]
-    stats.nee_stats[r1, 1] += 1
-    if r2 != r1:
-        stats.nee_stats[r2, 1] += 1
-    n_out += 1
-    if g >= 0 and tgt.abs_row[t] >= 0:                 # what the side met absorbs
-        ma = geo.material[g, 0] if cos_x < 0.0 else geo.material[g, 1]
-        out_k[n_out] = tgt.abs_row[t]
-        for b in range(n_bands):
-            out_w[n_out, b] = contrib[b] * mat.prob[ma, ABSORB, b]
-        n_out += 1
-    return n_out
+    return deposit(t, g, cos_x, rows, geo, mat, tgt, photon, stats, n_out)
 
 
 @helper
@@ -314,11 +298,12 @@ def double_image_event(v, n_draw, stat0, geo, mat, sens, tgt, mir, photon, stats
     scale = n_tgt / mir.picks2
     vmag = max(abs(vx), abs(vy), abs(vz), vscale)
     n_out = 0
+    total1 = plane_cdf(vx, vy, vz, mir, cdf, -1, MIX2, False)                # P1 by its importance at v
+    cdf2 = cdf[n_mir:]                                                          # P2's, per draw
     for _ in range(n_draw):
         t = min(int(uniform(state) * n_tgt), n_tgt - 1)
         u1, u2 = uniform(state), uniform(state)
         u = (uniform(state), uniform(state), uniform(state))
-        total1 = plane_cdf(vx, vy, vz, mir, cdf, -1, MIX2, False)            # P1 by its importance at v
         if not total1 > 0.0:
             return n_out
         k1 = search_cdf(cdf, 0, n_mir - 1, u1 * total1)
@@ -328,11 +313,11 @@ def double_image_event(v, n_draw, stat0, geo, mat, sens, tgt, mir, photon, stats
         if not p1 > 0.0 or sv1 == 0.0 or (mir.one_sided[pl1] != 0 and sv1 < 0.0):
             continue
         cx, cy, cz = tgt.center[t, 0], tgt.center[t, 1], tgt.center[t, 2]
-        total2 = plane_cdf(cx, cy, cz, mir, cdf, k1, MIX2, True)             # P2 by its importance at t's centre
+        total2 = plane_cdf(cx, cy, cz, mir, cdf2, k1, MIX2, True)             # P2 by its importance at t's centre
         if not total2 > 0.0:
             continue
-        k2 = search_cdf(cdf, 0, n_mir - 1, u2 * total2)
-        p2 = (cdf[k2] - (cdf[k2 - 1] if k2 > 0 else 0.0)) / total2
+        k2 = search_cdf(cdf2, 0, n_mir - 1, u2 * total2)
+        p2 = (cdf2[k2] - (cdf2[k2 - 1] if k2 > 0 else 0.0)) / total2
         pl2 = mir.plane[k2]
         bx, by, bz, sa2 = reflect(ax, ay, az, pl2, mir)                 # v'' = v' across P2
         if k2 == k1 or not p2 > 0.0 or sa2 == 0.0 or (mir.one_sided[pl2] != 0 and sa2 < 0.0):

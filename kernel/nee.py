@@ -413,7 +413,7 @@ def target_event(v, pick, w, u, stat, geo, mat, sens, tgt, photon, stats, n_out)
     t, d2c, tscale = pick
     u1, u2, u3 = u
     vmag = max(abs(vx), abs(vy), abs(vz), vscale)
-    contrib, out_k, out_w = photon.contrib, photon.out_k, photon.out_w
+    contrib = photon.contrib
     counters, nee_stats = stats.counters, stats.nee_stats
     n_bands = w.shape[0]
     kind = tgt.kind[t]
@@ -506,16 +506,31 @@ def target_event(v, pick, w, u, stat, geo, mat, sens, tgt, photon, stats, n_out)
         return n_out
     for b in range(n_bands):
         contrib[b] *= share
-    nee_stats[stat, 1] += 1
+    return deposit(t, g, cos_x, (stat, stat), geo, mat, tgt, photon, stats, n_out)
+
+
+@helper
+def deposit(t, g, cos_x, rows, geo, mat, tgt, photon, stats, n_out):
+    """Write a next event's deposit ``photon.contrib`` (B,) on target t's row from ``photon.out_k[n_out]`` on,
+    and, for a mesh (triangle g, met at cosine ``cos_x``) with an absorbed row, what the side met absorbs; count
+    it in ``stats.nee_stats`` at ``rows`` = (r1, r2) (found, weight; once where r1 == r2).  Returns the new
+    count."""
+    contrib, out_k, out_w, nee_stats = photon.contrib, photon.out_k, photon.out_w, stats.nee_stats
+    r1, r2 = rows
+    nee_stats[r1, 1] += 1
+    if r2 != r1:
+        nee_stats[r2, 1] += 1
     out_k[n_out] = tgt.row[t]
-    for b in range(n_bands):
+    for b in range(contrib.shape[0]):
         out_w[n_out, b] = contrib[b]
-        nee_stats[stat, 2] += contrib[b]
+        nee_stats[r1, 2] += contrib[b]
+        if r2 != r1:
+            nee_stats[r2, 2] += contrib[b]
     n_out += 1
-    if tgt.abs_row[t] >= 0:
+    if g >= 0 and tgt.abs_row[t] >= 0:
         mm = geo.material[g, 0] if cos_x < 0.0 else geo.material[g, 1]
         out_k[n_out] = tgt.abs_row[t]
-        for b in range(n_bands):
+        for b in range(contrib.shape[0]):
             out_w[n_out, b] = contrib[b] * mat.prob[mm, ABSORB, b]
         n_out += 1
     return n_out

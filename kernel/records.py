@@ -206,7 +206,8 @@ Photon = namedtuple("Photon", [
     "cdf",           # (n + K,) float64: cumulative importances at a vertex: of the targets within each cluster
                      # (by position in Targets.cluster_member), then of the K clusters (kernel.nee.pick_by_importance)
     "exact",         # (K,) uint8: the clusters whose targets' importances were summed at this vertex
-    "plane_cdf",     # (P,) float64: cumulative importances of the mirror planes in use at a vertex (kernel.images)
+    "plane_cdf",     # (2P,) float64: cumulative importances of the mirror planes in use at a vertex, then (second
+                     # half) at a target (kernel.images)
 ])
 
 Accumulator = namedtuple("Accumulator", [

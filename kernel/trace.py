@@ -133,7 +133,7 @@ def work_arrays(scene, nee, scratch, tallies):
     photon = Photon(scratch, np.zeros(1, dtype=np.uint64), np.empty(n_bands), np.empty(n_bands), np.empty(n_bands),
                     np.empty(n_bands), np.empty(n_slots, dtype=np.int64), np.empty((n_slots, n_bands)),
                     np.empty(CAND_CAP + n_flush, dtype=np.int64), np.empty(max(1, n_cdf + n_clusters)),
-                    np.zeros(max(1, n_clusters), dtype=np.uint8), np.empty(max(1, n_planes)))
+                    np.zeros(max(1, n_clusters), dtype=np.uint8), np.empty(max(1, 2 * n_planes)))
     accum = Accumulator(np.zeros((n_rows, n_bands)), np.zeros(n_rows, dtype=np.uint8), np.empty(n_rows, dtype=np.int64),
                         np.empty(n_bands))
     cvw = ControlWork(np.zeros((n_bands, n_cv)), np.zeros((n_bands, n_cv)), np.zeros((n_bands, n_bands, n_cv)),
