@@ -21,11 +21,14 @@ CLUSTER_NEAR = 1.0   # within this many of its radii from a cluster's centre, it
 
 
 @helper
-def _importance(t, v, how, tgt):
-    """Target t's importance from point v, ``how`` = (weight (n,), cluster weight (K,), floor2 (n,), scale,
-    excl): ``weight[t] / max(scale · d², floor2[t])``, 0 if ``excl`` and v is within t's near radius
-    (``tgt.near_r2``: served by an own event)."""
-    weight, _, floor2, scale, excl = how
+def _importance(t, v, how, tgt, far):
+    """Target t's importance from point v, ``how`` = (weight (n,), far clusters' weight sums (K,), floor2 (n,),
+    scale, excl, far weight (n,)): ``weight[t] / max(scale · d², floor2[t])`` (``far``: t's cluster is far from
+    v, with ``how[5]`` as weights), 0 if ``excl`` and v is within t's near radius (``tgt.near_r2``: served by an
+    own event)."""
+    weight, _, floor2, scale, excl, far_weight = how
+    if far:
+        weight = far_weight
     ex, ey, ez = v[0] - tgt.center[t, 0], v[1] - tgt.center[t, 1], v[2] - tgt.center[t, 2]
     d2 = ex * ex + ey * ey + ez * ez
     if excl and d2 < tgt.near_r2[t]:
@@ -38,8 +41,9 @@ def cluster_cdf(v, how, cl, tgt, cdf, exact):
     """Cumulative importances of the clusters ``cl`` (:class:`~kernel.records.Clusters`) seen from v into
     ``cdf[n : n + K]`` (n targets, K clusters); returns their sum.  A cluster within :data:`CLUSTER_NEAR`
     radii of v counts the exact sum of its targets' importances (:func:`_importance`, cumulated into ``cdf``
-    at their positions in ``cl.member``; ``exact[k]`` = 1), a farther one its weight ``how[1][k] / (scale ·
-    d²)`` (``exact[k]`` = 0)."""
+    at their positions in ``cl.member``; ``exact[k]`` = 1), a farther one the sum of its targets' far weights
+    ``how[1][k] / (scale · d²)`` (``exact[k]`` = 0; targets with far weight 0 are served by :mod:`kernel.cones`
+    from there)."""
     n = tgt.kind.shape[0]
     scale = how[3]
     total = 0.0
@@ -50,7 +54,7 @@ def cluster_cdf(v, how, cl, tgt, cdf, exact):
         if d2 < r * r:
             s = 0.0
             for j in range(cl.start[k], cl.start[k + 1]):
-                s += _importance(cl.member[j], v, how, tgt)
+                s += _importance(cl.member[j], v, how, tgt, False)
                 cdf[j] = s
             exact[k] = 1
         else:
@@ -69,10 +73,10 @@ def draw(u1, u2, total, v, how, cl, tgt, cdf, exact):
     k = search_cdf(cdf, n, n + cl.radius.shape[0] - 1, u1 * total) - n
     p_k = (cdf[n + k] - (cdf[n + k - 1] if k > 0 else 0.0)) / total
     a, b = cl.start[k], cl.start[k + 1]
-    if exact[k] == 0:          # its targets' importances, now (kept for the vertex's other picks)
+    if exact[k] == 0:          # a far cluster: its targets' importances, now (kept for the vertex's other picks)
         s = 0.0
         for j in range(a, b):
-            s += _importance(cl.member[j], v, how, tgt)
+            s += _importance(cl.member[j], v, how, tgt, True)
             cdf[j] = s
         exact[k] = 1
     s = cdf[b - 1]

@@ -357,7 +357,7 @@ def next_event(v, stat, cover, control, geo, mat, sens, tgt, zones, organs, phot
     n_near = near_start[vtri + 1] - near_start[vtri] if scale != 1.0 and vtri >= 0 else 0
     total = 0.0
     if organs is not None and scale != 1.0:   # importances of the targets not served by an own event here
-        how = (organs.weight, organs.cluster_weight, tgt.img_near2, NEAR * NEAR, n_near > 0)
+        how = (organs.weight, organs.cluster_weight, tgt.img_near2, NEAR * NEAR, n_near > 0, organs.far_weight)
         total = cluster_cdf((vx, vy, vz), how, organs.clusters, tgt, photon.cdf, photon.exact)
         if not total > 0.0:
             n_iter = 0

@@ -113,7 +113,7 @@ def organ_zone_event(v, n_draw, stat, geo, mat, sens, tgt, organs, photon, stats
     n_out = 0
     # zones drawn ∝ 1 / max(d², R²) (R the zone's radius): about the solid angle of the zone seen from v
     vpos = (vx, vy, vz)
-    how = (oz.weight, oz.cluster_weight, tgt.near_r2, 1.0, False)
+    how = (oz.weight, oz.cluster_weight, tgt.near_r2, 1.0, False, oz.weight)
     total = cluster_cdf(vpos, how, organs.clusters, tgt, photon.cdf, photon.exact)
     if not total > 0.0:
         return 0

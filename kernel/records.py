@@ -155,7 +155,10 @@ Clusters = namedtuple("Clusters", [
 OrganEvents = namedtuple("OrganEvents", [
     "clusters",      # Clusters of the targets
     "weight",        # (n,) float64: picks drawn ∝ weight[t] / max(d², a²) (kernel.importance)
-    "cluster_weight",  # (K,) float64: the sum of each cluster's weights
+    "far_weight",    # (n,) float64: ... as seen from a vertex far from its cluster; 0: served by kernel.cones there
+    "cluster_weight",  # (K,) float64: the sum of each cluster's far weights
+    "cluster_of",    # (n,) int64: the cluster of each target
+    "cones",         # float: rays per vertex into the cones of the clusters v is far from (kernel.cones; 0: none)
     "zones",         # OrganZones: two-step next events through the organ surface beside an organ
 ])
 
@@ -203,8 +206,9 @@ Photon = namedtuple("Photon", [
     "out_k",         # int64: tally rows of a vertex's next-event deposits, and
     "out_w",         # (., B) float64: the deposits
     "seen",          # int64: sensors already tested on the current segment
-    "cdf",           # (n + K,) float64: cumulative importances at a vertex: of the targets within each cluster
-                     # (by position in Targets.cluster_member), then of the K clusters (kernel.nee.pick_by_importance)
+    "cdf",           # (n + (2 + CONE_DATA) K,) float64: cumulative importances at a vertex: of the targets within each cluster
+                     # (by position in Targets.cluster_member), then of the K clusters (kernel.nee.pick_by_importance),
+                     # then the weights of the clusters' cones and their data (kernel.cones)
     "exact",         # (K,) uint8: the clusters whose targets' importances were summed at this vertex
     "plane_cdf",     # (2P,) float64: cumulative importances of the mirror planes in use at a vertex, then (second
                      # half) at a target (kernel.images)

@@ -204,3 +204,24 @@ def cluster_sums(weight, clusters):
     if len(member) == 0:
         return np.zeros(len(start) - 1)
     return f64(np.add.reduceat(np.asarray(weight, float)[member], start[:-1]))
+
+
+#: a target is served by cone rays (:mod:`kernel.cones`) from far vertices when its area is at least this share
+#: of the mean cross-section per target of the clusters' spheres; smaller ones (buds) keep their picks
+CONE_SHARE = 0.1
+
+
+def cone_served(area, clusters, share=None):
+    """(n,) bool: the targets served by :mod:`kernel.cones` from vertices far from their cluster.
+
+    From there a cone ray meets target t with a probability about its projected area over the cones' total
+    cross-section, a pick about 1 / n (n targets): the rays serve large targets (leaves) better, picks small
+    ones (buds, which a cone ray rarely meets).  Targets whose area (one side) is at least ``share`` (default
+    :data:`CONE_SHARE`) of Σ_k π r_k² / n are served by rays.  ``area`` (n,), ``clusters`` their
+    :class:`~kernel.records.Clusters`."""
+    share = CONE_SHARE if share is None else share
+    area = np.asarray(area, float)
+    if len(area) == 0:
+        return np.zeros(0, bool)
+    cross = math.pi * float(np.sum(np.asarray(clusters.radius) ** 2)) / len(area)
+    return area >= share * cross

@@ -42,6 +42,7 @@ import math
 import numpy as np
 from numba import njit
 
+from .cones import CONE_DATA, cone_events
 from .control import add_control, control_deposits, control_products, fold_control
 from .embree import ARGS, CAND, CAND_CAP, CAND_COUNT, GEOM_ID, HIT_U, HIT_V, INVALID_ID, PRIM_ID, RAYHIT, TFAR
 from .emission import emit, pick_element
@@ -57,7 +58,6 @@ from .rng import n_draws, seed_stream, uniform
 from .sampling import cosine_hemisphere, mirror, phong_lobe
 from .tallies import (C_BATCHES, C_CAND_OVERFLOW, C_LOST, C_RAYS, N_COUNTERS, fate_rows, flush,  # noqa: F401
                       record, record_all)
-from .organ_zones import organ_zone_event
 from .zones import zone_event
 
 _TFAR_MAX = 3.0e38
@@ -125,14 +125,15 @@ def work_arrays(scene, nee, scratch, tallies):
         if nee.organs is not None:
             n_cdf, n_clusters, organ_picks = n_tgt, nee.organs.clusters.radius.shape[0], nee.organs.zones.picks
         n_planes = nee.mirrors.plane.shape[0]
-        n_draw = 1 + int(max(nee.mirrors.picks, nee.mirrors.picks2, nee.zones.picks, organ_picks))
+        n_draw = 1 + int(max(nee.mirrors.picks, nee.mirrors.picks2, nee.zones.picks, organ_picks,
+                             nee.organs.cones if nee.organs is not None else 0.0))
         n_slots = 3 * (n_tgt + tgt.picks) + 2 * OWN_SAMPLES * n_near + 2 * n_draw   # own events and picks (up to
         n_cv = nee.control.row.shape[0]          # 3 deposits each, a mesh's own events 2 each), or image / zone events
     flush_start = scene.sensors.flush_start
     n_flush = int(np.max(np.diff(flush_start))) if flush_start.shape[0] > 1 else 0   # most sensors on a triangle
     photon = Photon(scratch, np.zeros(1, dtype=np.uint64), np.empty(n_bands), np.empty(n_bands), np.empty(n_bands),
                     np.empty(n_bands), np.empty(n_slots, dtype=np.int64), np.empty((n_slots, n_bands)),
-                    np.empty(CAND_CAP + n_flush, dtype=np.int64), np.empty(max(1, n_cdf + n_clusters)),
+                    np.empty(CAND_CAP + n_flush, dtype=np.int64), np.empty(max(1, n_cdf + (2 + CONE_DATA) * n_clusters)),
                     np.zeros(max(1, n_clusters), dtype=np.uint8), np.empty(max(1, 2 * n_planes)))
     accum = Accumulator(np.zeros((n_rows, n_bands)), np.zeros(n_rows, dtype=np.uint8), np.empty(n_rows, dtype=np.int64),
                         np.empty(n_bands))
@@ -181,8 +182,9 @@ def trace_photons(scene, nee, organs, seed, first, count, tallies, stats, photon
         img_on = mir.picks > 0.0 and (tgt.on_sensors or tgt.on_receivers) and n_tgt > 0 and mir.plane.shape[0] > 0
         img2_on = img_on and mir.picks2 > 0.0 and mir.plane.shape[0] > 1
         zone_on = zones.picks > 0.0 and tgt.on_sensors and zones.target_plane.shape[0] > 0 and 0 < tgt.picks < n_tgt
-        organ_on = False
+        organ_on = cone_on = False
         if organs is not None:
+            cone_on = organs.cones > 0.0 and tgt.on_receivers and 0 < tgt.picks < n_tgt
             organ_on = (organs.zones.picks > 0.0 and tgt.on_receivers and organs.zones.target.shape[0] > 0
                         and 0 < tgt.picks < n_tgt)
         stat_planes = n_mat + tgt.from_emitter.shape[0]
@@ -243,6 +245,9 @@ def trace_photons(scene, nee, organs, seed, first, count, tallies, stats, photon
                     n_out = zone_event(vertex, n_zone, geo, mat, sens, tgt, zones, photon, stats)
                     nh = record_all(n_out, nh, photon, accum)
                 if organs is not None:
+                    if cone_on:     # and into the cones of the organ clusters the vertex is far from
+                        n_out = cone_events(vertex, stat, geo, mat, tgt, organs, photon, stats, 0)
+                        nh = record_all(n_out, nh, photon, accum)
                     n_oz = n_draws(organs.zones.picks, state) if organ_on and room else 0
                     if n_oz > 0:   # and through one diffuse vertex on the organ surface beside an organ
                         n_out = organ_zone_event(vertex, n_oz, stat, geo, mat, sens, tgt, organs, photon, stats)

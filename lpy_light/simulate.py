@@ -25,7 +25,7 @@ from .kernel.records import (Emitters, Geometry, Materials, Mirrors, NextEvents,
 from .kernel.nee import NEAR
 from .kernel.organ_zones import organ_zones
 from .kernel.tallies import C_BATCHES, N_COUNTERS
-from .kernel.targets import build_targets, cluster_sums, target_clusters
+from .kernel.targets import build_targets, cluster_sums, cone_served, target_clusters
 from .kernel.trace import trace_chunk
 from .kernel.zones import near_zones
 from .materials import SPECULAR_R, sampling_tables
@@ -224,6 +224,8 @@ class KernelScene:
         self.nee_zones = 0.3        # two-step next events through the surface beside a disc, per vertex (0: none)
         self.nee_importance = True  # next events to organs: picks by importance (kernel.importance), organ zones
         self.nee_organ_zones = 0.5  # two-step next events through the organ surface beside an organ, per vertex
+        self.nee_cones = 4.0        # rays into the cones of the organ clusters a vertex is far from, per vertex at most
+                                    # (kernel.cones; 0: picks among all clusters instead)
         tris = chamber.triangles
         area = 0.5 * np.linalg.norm(np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0]), axis=1)
         keep = np.isfinite(tris).all(axis=(1, 2)) & (area > 0)
@@ -380,7 +382,10 @@ class KernelScene:
             weight = np.ones(n_tgt)
             zones = organ_zones(self.tri_verts, self.tri_receiver, self.tri_pid, tgt.near_start, tgt.near_list,
                                 tgt.near_r2, tgt.kind, tgt.ref, tgt.center, clusters)
-            self.organ_events = OrganEvents(clusters, weight, cluster_sums(weight, clusters), zones)
+            cluster_of = np.zeros(n_tgt, np.int64)
+            cluster_of[clusters.member] = np.repeat(np.arange(len(clusters.radius)), np.diff(clusters.start))
+            self.organ_events = OrganEvents(clusters, weight, weight, cluster_sums(weight, clusters), cluster_of,
+                                            0.0, zones)
 
     def prune_next_events(self, photons: int = 8192, max_share: float = 0.0, seed: int = 987654321,
                           threads=None, min_rays: int = 256, keep=()) -> dict:
@@ -510,7 +515,11 @@ class KernelScene:
         organs = None
         if self.organ_events is not None:      # a plant's organs are the targets (LightModel)
             ev = self.organ_events
-            organs = ev._replace(weight=f64(ev.weight), zones=ev.zones._replace(picks=float(self.nee_organ_zones)))
+            far = ev.weight
+            if self.nee_cones > 0:        # large targets served by cone rays from vertices far from their cluster
+                far = np.where(cone_served(self.targets.area, ev.clusters), 0.0, ev.weight)
+            organs = ev._replace(weight=f64(ev.weight), far_weight=f64(far), cluster_weight=cluster_sums(far, ev.clusters),
+                                 cones=float(self.nee_cones), zones=ev.zones._replace(picks=float(self.nee_organ_zones)))
         return scene, NextEvents(targets, mirrors, zones, control, organs)
 
     def trace(self, seed: int, first: int, count: int, records=None):

@@ -143,7 +143,7 @@ PINNED = {
     "room-line-weighted": "c7d42d71b5c767043f1e8ec90838e2f94856d9283c8c561cd7be56c0fa3a5a6b",
     "room-lambertian-nee": "dd12af7cbbbfac8ad4bcdc87cfd3a4f252703757db83e628fd737a2da2776b93",
     "room-lambertian-analog": "22c08b31f224eb5c161b766a925e443d33ca195c3ccb7f1120776b4a908fcb42",
-    "rose-nee": "561210bf5661ad488cd62cdc2fab36d1ddd531c631893b081e39364754f537ee",
+    "rose-nee": "3804205f78ded0b8f07747a350d3eb9b4ca23621f6b6f3ddd82f8ae62b6641e5",
 }
 
 

@@ -91,7 +91,7 @@ def test_importance_picks_favour_the_targets_beside_a_vertex(pocket):
     bud, leaf = tgt.receiver_target[0], tgt.receiver_target[1]
     cdf, exact = np.zeros(n + k), np.zeros(k, np.uint8)
     v = (530.0, 500.0, 260.0)
-    how = (organs.weight, organs.cluster_weight, tgt.img_near2, 9.0, True)
+    how = (organs.weight, organs.cluster_weight, tgt.img_near2, 9.0, True, organs.far_weight)
     total = cluster_cdf(v, how, organs.clusters, tgt, cdf, exact)
     rng = np.random.default_rng(3)
     counts, prob = np.zeros(n), np.full(n, np.nan)

@@ -1,0 +1,220 @@
+"""Next events to far clusters of organs: rays aimed into the cones that hold them, the first organ met tallied.
+
+A pick (:mod:`kernel.importance`) aims a shadow ray at one point of one target.  From a vertex far from a
+canopy -- the Makrolon ceiling, a wall, the table -- thousands of organs look alike: a pick is one target in n,
+its deposit n / picks times the target's share, and, with the organs hiding one another, most picks meet
+another organ first (a shadow ray for nothing).  A leaf's variance then grows as n (issue 28: 16 roses cost
+130x one rose's, where counting photons costs 3.5x).
+
+Here the targets of each cluster (:func:`kernel.targets.target_clusters`) that v is outside of are served
+instead by rays drawn in the cone of directions that meets the cluster's bounding sphere: a cluster k is drawn
+in proportion to ``c_k = Ω_k · f_k`` (Ω_k its cone's solid angle, f_k a bound of the leaving pdf's cosine
+factor over the cone: about the share of v's light that goes that way), a direction uniformly within its
+cone, and the ray tallies what the first surface it meets receives if that surface is a target organ of a
+far cluster.  The direction's density is the mixture over all far clusters whose cones hold it,
+
+    pdf(ω) = Σ_k [ω ∈ cone_k] · (c_k / C) / Ω_k,        C = Σ_k c_k,
+
+and the deposit is the photon's weight times the leaving pdf p(ω) over (rays · pdf(ω)): unbiased, each
+deposit at most about C / rays of the photon's weight, however many organs there are and whichever one hides
+which.  Which targets which estimator serves is fixed by v alone (a split of the path space, as in
+:func:`kernel.nee.next_event`): a target with an own event at v (within its near radius) by that event; one
+of a cluster v is within :data:`~kernel.importance.CLUSTER_NEAR` radii of by picks; the others by these rays.
+
+Lengths in scene units, solid angles in steradians, deposits in photons of weight.
+"""
+import math
+
+from .importance import CLUSTER_NEAR
+from .jit import helper
+from .nee import INV_4PI, deposit, view_factors
+from .ptr import call_ptr3, load_f32, load_u32
+from .rays import pick_coplanar, set_ray
+from .records import DIFFUSE_R, DIFFUSE_T, T_MESH2, V_ISOTROPIC, V_LAMBERT, V_SURFACE  # noqa: F401
+from .embree import ARGS, GEOM_ID, HIT_U, HIT_V, INVALID_ID, PRIM_ID, RAYHIT
+from .rng import n_draws, uniform
+from .sampling import frame, search_cdf
+from .tallies import C_SHADOW
+
+_TFAR_MAX = 3.0e38
+
+
+@helper
+def cone_of(k, vx, vy, vz, cl):
+    """Cluster k's cone seen from v: ``(d, ax, ay, az, sin θ, 1 − cos θ)``, a its unit axis (towards the centre,
+    at distance d), θ its half angle; ``1 − cos θ`` is 0 when v is within :data:`CLUSTER_NEAR` radii of the
+    cluster (served by picks, not by rays)."""
+    ex, ey, ez = cl.center[k, 0] - vx, cl.center[k, 1] - vy, cl.center[k, 2] - vz
+    d2 = ex * ex + ey * ey + ez * ez
+    r = cl.radius[k]
+    if d2 < (CLUSTER_NEAR * r) ** 2 or not d2 > 0.0:
+        return 0.0, 0.0, 0.0, 1.0, 0.0, 0.0
+    d = math.sqrt(d2)
+    s = min(r / d, 1.0)
+    return d, ex / d, ey / d, ez / d, s, s * s / (1.0 + math.sqrt(1.0 - s * s))
+
+
+#: the cones' share of a vertex's light C from which it gets the full number of rays; below, √(C / C_FULL) of it
+#: (rays go where they reduce the variance most: a vertex whose cones hold little of its light deposits little
+#: through them.  Rose, 1.15e6 photons, leaves' p90 σ² × CPU: 20.1 with 2 rays at every vertex, 23.2 ∝ C,
+#: 14.3 ∝ √C with 4 rays at C ≥ 0.25)
+C_FULL = 0.25
+
+
+@helper
+def ray_mean(cones, total):
+    """The mean number of cone rays at a vertex whose cones hold ``total`` = C of its light (see :data:`C_FULL`),
+    ``cones`` the setting (:attr:`lpy_light.simulate.KernelScene.nee_cones`)."""
+    return cones * min(1.0, math.sqrt(total / C_FULL))
+
+
+#: per cluster, after its cumulative weight: the cone's axis (3), 1 − cos θ and c_k / Ω_k (:func:`cone_cdf`)
+CONE_DATA = 5
+
+
+@helper
+def cone_cdf(v, side, cl, cdf, at):
+    """Cumulative weights ``c_k`` of the K clusters' cones seen from vertex v into ``cdf[at : at + K]``, and each
+    cone's axis, ``1 − cos θ`` (0: a near cluster) and ``c_k / Ω_k`` into ``cdf[at + K + 5k : at + K + 5k + 5]``;
+    returns the sum C of the weights.  ``side`` = (front, back): how much of the leaving light goes to each side
+    of a surface (its bands' largest diffuse reflectance and transmittance; (1, 0) for a Lambertian emitter,
+    (1, 1) isotropic)."""
+    vx, vy, vz, nx, ny, nz, mode, m, vscale, vtri = v
+    c0, c1 = view_factors(mode)
+    front, back = side
+    n_k = cl.radius.shape[0]
+    total = 0.0
+    for k in range(n_k):
+        d, ax, ay, az, s, omc = cone_of(k, vx, vy, vz, cl)
+        c = 0.0
+        if omc > 0.0:
+            cosc = ax * nx + ay * ny + az * nz
+            f = front if cosc - s > 0.0 else (back if cosc + s < 0.0 else max(front, back))
+            c = 2.0 * math.pi * omc * f * (c0 + c1 * min(1.0, abs(cosc) + s))
+        total += c
+        cdf[at + k] = total
+        i = at + n_k + CONE_DATA * k
+        cdf[i], cdf[i + 1], cdf[i + 2], cdf[i + 3] = ax, ay, az, omc
+        cdf[i + 4] = c / (2.0 * math.pi * omc) if c > 0.0 else 0.0
+    return total
+
+
+@helper
+def cone_pdf(dx, dy, dz, total, n_k, cdf, at):
+    """The density (1/sr) of direction d among :func:`cone_cdf`'s cones (summing to ``total``): Σ over the cones
+    holding d of (c_k / C) / Ω_k."""
+    pdf = 0.0
+    for k in range(n_k):
+        i = at + n_k + CONE_DATA * k
+        if cdf[i + 4] > 0.0 and 1.0 - (dx * cdf[i] + dy * cdf[i + 1] + dz * cdf[i + 2]) <= cdf[i + 3]:
+            pdf += cdf[i + 4]
+    return pdf / total
+
+
+@helper
+def cone_direction(u0, u1, u2, total, n_k, cdf, at):
+    """A direction drawn from :func:`cone_cdf`'s cones (weights in ``cdf[at:]``, summing to ``total``) from three
+    uniforms: a cone in proportion to its weight, then a direction uniform within it.  Its density is
+    :func:`cone_pdf`."""
+    k = search_cdf(cdf, at, at + n_k - 1, u0 * total) - at
+    i = at + n_k + CONE_DATA * k
+    ax, ay, az, omc = cdf[i], cdf[i + 1], cdf[i + 2], cdf[i + 3]
+    g = u1 * omc                                  # 1 − cos of the angle to the axis, uniform in the cone
+    ct = 1.0 - g
+    st = math.sqrt(max(g * (2.0 - g), 0.0))
+    tb, bb = frame(ax, ay, az)
+    cp, sp = math.cos(2.0 * math.pi * u2), math.sin(2.0 * math.pi * u2)
+    return (ct * ax + st * (cp * tb[0] + sp * bb[0]), ct * ay + st * (cp * tb[1] + sp * bb[1]),
+            ct * az + st * (cp * tb[2] + sp * bb[2]))
+
+
+@helper
+def cone_events(v, stat, geo, mat, tgt, organs, photon, stats, n_out):
+    """Rays from vertex ``v`` (:class:`~kernel.records.Vertex`) into the cones of the far clusters of organ
+    targets (see above): a random whole number of them, of mean μ = :func:`ray_mean` (C); the deposits of those
+    that first meet a target organ served by them, divided by μ, go to ``photon.out_k`` / ``photon.out_w`` from
+    ``n_out`` on.  Returns the new count."""
+    vx, vy, vz, nx, ny, nz, mode, m, vscale, vtri = v
+    cl = organs.clusters
+    n_k = cl.radius.shape[0]
+    cdf, state, scratch, contrib, w = photon.cdf, photon.state, photon.scratch, photon.contrib, photon.w
+    counters, nee_stats = stats.counters, stats.nee_stats
+    n_bands = w.shape[0]
+    at = tgt.kind.shape[0] + n_k            # after the picks' importances (kernel.importance.cluster_cdf)
+    if mode == V_SURFACE:
+        front, back = 0.0, 0.0
+        for b in range(n_bands):
+            front = max(front, mat.prob[m, DIFFUSE_R, b])
+            back = max(back, mat.prob[m, DIFFUSE_T, b])
+    elif mode == V_LAMBERT:
+        front, back = 1.0, 0.0
+    else:
+        front, back = 1.0, 1.0
+    total = cone_cdf(v, (front, back), cl, cdf, at)
+    if not total > 0.0:
+        return n_out
+    mean = ray_mean(organs.cones, total)
+    n_rays = n_draws(mean, state)
+    vmag = max(abs(vx), abs(vy), abs(vz), vscale)
+    n_near = tgt.near_start[vtri + 1] - tgt.near_start[vtri] if vtri >= 0 else 0
+    rh = scratch + RAYHIT
+    for _ in range(n_rays):
+        dx, dy, dz = cone_direction(uniform(state), uniform(state), uniform(state), total, n_k, cdf, at)
+        cos_v = dx * nx + dy * ny + dz * nz
+        if mode == V_ISOTROPIC:
+            p_leave, side = INV_4PI, 1.0
+        elif mode == V_LAMBERT:
+            if cos_v <= 0.0:
+                continue
+            p_leave, side = cos_v / math.pi, 1.0
+        else:
+            side = 1.0 if cos_v > 0.0 else -1.0
+            if (front if side > 0.0 else back) <= 0.0:
+                continue
+            p_leave = abs(cos_v) / math.pi
+        eps = side * geo.offset_rel * vmag
+        counters[C_SHADOW] += 1
+        nee_stats[stat, 0] += 1
+        set_ray(scratch, vx + eps * nx, vy + eps * ny, vz + eps * nz, dx, dy, dz, _TFAR_MAX)
+        call_ptr3(geo.intersect, geo.scene, rh, scratch + ARGS)
+        gid = load_u32(rh + GEOM_ID)
+        if gid == INVALID_ID:
+            continue
+        tri = load_u32(rh + PRIM_ID) + geo.geom_offset[gid]
+        rec = geo.receiver[tri]
+        if rec < 0 or tgt.receiver_target[rec] < 0:
+            continue                                  # the chamber, or an organ that is no target
+        bu, bv = load_f32(rh + HIT_U), load_f32(rh + HIT_V)
+        b0 = 1.0 - bu - bv
+        verts = geo.verts
+        hx = b0 * verts[tri, 0, 0] + bu * verts[tri, 1, 0] + bv * verts[tri, 2, 0]
+        hy = b0 * verts[tri, 0, 1] + bu * verts[tri, 1, 1] + bv * verts[tri, 2, 1]
+        hz = b0 * verts[tri, 0, 2] + bu * verts[tri, 1, 2] + bv * verts[tri, 2, 2]
+        if geo.cop_start[tri + 1] > geo.cop_start[tri]:   # coincident surfaces: as a photon picks among them
+            tri = pick_coplanar(tri, hx, hy, hz, dx, dy, dz, geo, state)
+            rec = geo.receiver[tri]
+            if rec < 0 or tgt.receiver_target[rec] < 0:
+                continue
+        t = tgt.receiver_target[rec]
+        ex, ey, ez = vx - tgt.center[t, 0], vy - tgt.center[t, 1], vz - tgt.center[t, 2]
+        if n_near > 0 and ex * ex + ey * ey + ez * ez < tgt.near_r2[t]:
+            continue                                  # served by its own event at v
+        if organs.far_weight[t] > 0.0:
+            continue                                  # a small target: served by picks from every cluster
+        if cdf[at + n_k + CONE_DATA * organs.cluster_of[t] + 3] == 0.0:
+            continue                                  # its cluster is near v: served by picks
+        cos_x = dx * geo.normal[tri, 0] + dy * geo.normal[tri, 1] + dz * geo.normal[tri, 2]
+        if tgt.kind[t] != T_MESH2 and cos_x >= 0.0:
+            continue                                  # a one-sided receiver, met from behind
+        pdf = cone_pdf(dx, dy, dz, total, n_k, cdf, at)
+        if not pdf > 0.0:
+            continue
+        scale = p_leave / (mean * pdf)
+        any_light = False
+        for b in range(n_bands):
+            f = 1.0 if mode != V_SURFACE else mat.prob[m, DIFFUSE_R if side > 0.0 else DIFFUSE_T, b]
+            contrib[b] = w[b] * f * scale
+            any_light = any_light or contrib[b] > 0.0
+        if any_light:
+            n_out = deposit(t, tri, cos_x, (stat, stat), geo, mat, tgt, photon, stats, n_out)
+    return n_out
