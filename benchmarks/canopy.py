@@ -9,7 +9,7 @@ CPU seconds × (p90 / 3 %)², σ ∝ 1/√N), then the cost ratio to one rose an
 (cost against organs, the linear line drawn):
 
     .venv/bin/python benchmarks/canopy.py [--roses 1 4 9 16] [--photons 1e6] [--estimators nee weighted analog]
-                                          [--out docs/efficiency]
+                                          [--cones 4] [--out docs/efficiency]
 
 Costs are CPU seconds (steadier than wall time on a shared machine; with 2 threads ≈ 2 × wall when quiet).
 """
@@ -45,9 +45,9 @@ def canopy(k: int) -> dict:
     return organs
 
 
-def step(organs, estimator, photons, threads, seed=3):
+def step(organs, estimator, photons, threads, seed=3, cones=4.0):
     model = LightModel("angers-12bands", photons=photons, plant_unit="cm", estimator=estimator, threads=threads,
-                       seed=seed, targets=["Leaf", "Bud"],
+                       seed=seed, targets=["Leaf", "Bud"], cone_rays=cones,
                        organs={"Leaf": bush.LEAF_MATERIAL, "Internode": bush.LEAF_MATERIAL[0],
                                "Bud": bush.LEAF_MATERIAL[0]})
     converted = model.organs_from_meshes(organs)
@@ -69,6 +69,7 @@ def main():
     ap.add_argument("--photons", type=float, default=1e6)
     ap.add_argument("--estimators", nargs="+", default=["nee", "weighted", "analog"])
     ap.add_argument("--threads", type=int, default=None)
+    ap.add_argument("--cones", type=float, default=4.0, help="LightModel's cone_rays (nee; 0: picks only, as before)")
     ap.add_argument("--out", default=None, help="folder for canopy.csv and canopy.png")
     args = ap.parse_args()
     rows = []
@@ -77,7 +78,7 @@ def main():
     for k in args.roses:
         organs = canopy(k)
         for est in args.estimators:
-            r = {"roses": k, "estimator": est, **step(organs, est, int(args.photons), args.threads)}
+            r = {"roses": k, "estimator": est, **step(organs, est, int(args.photons), args.threads, cones=args.cones)}
             rows.append(r)
             print("%6d %9s %7d %9d %8.2f %8.2f %9.1f%% %9.1f%% %11.1f s" % (
                 k, est, r["organs"], r["triangles"], r["wall_s"], r["cpu_s"], 100 * r["leaves_p90"],

@@ -6,6 +6,7 @@ and 90th-percentile relative σ on PAR, the buds' median, and what the geometry 
 as lsystems/rose.lpy runs in L-Py, minus PlantGL's tessellation.
 
     .venv/bin/python benchmarks/rose.py [--photons 300000] [--steps 5] [--estimator nee] [--targets all] [--images 0.2]
+                                        [--cones 4]
 
 With ``--lpy`` (in a venv with L-Py and PlantGL, e.g. ``.venv-lpy`` from ``scripts/test-lpy.sh``), the same
 growth through the real L-Py: ``lsystems/rose.lpy`` derived ``--steps`` steps (default 36: ≥ 500 organs), and per
@@ -141,6 +142,8 @@ def main():
                     help="modules next events aim at (default: Leaf Bud, as lsystems/rose.lpy; 'all': every organ)")
     ap.add_argument("--images", type=float, default=None,
                     help="next events through a mirror per vertex, on average (default: LightModel's, 0.2)")
+    ap.add_argument("--cones", type=float, default=None,
+                    help="rays into far organ clusters' cones per vertex (default: LightModel's cone_rays, 4; 0: none)")
     ap.add_argument("--lpy", action="store_true",
                     help="grow lsystems/rose.lpy in the real L-Py (needs L-Py/PlantGL) and time where a step goes")
     ap.add_argument("--model", default=None,
@@ -157,6 +160,8 @@ def main():
                        organs={"Leaf": LEAF_MATERIAL, "Internode": LEAF_MATERIAL[0], "Bud": LEAF_MATERIAL[0]})
     if args.images is not None:
         model.mirror_events = args.images
+    if args.cones is not None:
+        model.kscene.nee_cones = args.cones
     print("chamber + normalisation: %.2f s (once)" % (time.perf_counter() - t0))
     print("%4s %7s %9s %8s %9s %9s %9s %10s %10s %10s %10s" % ("step", "organs", "triangles", "step s", "CPU s",
                                                                  "convert s", "trace s", "leaf σ med", "leaf σ p90",
