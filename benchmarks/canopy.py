@@ -9,7 +9,7 @@ CPU seconds × (p90 / 3 %)², σ ∝ 1/√N), then the cost ratio to one rose an
 (cost against organs, the linear line drawn):
 
     .venv/bin/python benchmarks/canopy.py [--roses 1 4 9 16] [--photons 1e6] [--estimators nee weighted analog]
-                                          [--cones 4] [--out docs/efficiency]
+                                          [--cones N] [--out docs/efficiency]
 
 Costs are CPU seconds (steadier than wall time on a shared machine; with 2 threads ≈ 2 × wall when quiet).
 """
@@ -45,7 +45,7 @@ def canopy(k: int) -> dict:
     return organs
 
 
-def step(organs, estimator, photons, threads, seed=3, cones=4.0):
+def step(organs, estimator, photons, threads, seed=3, cones=None):
     model = LightModel("angers-12bands", photons=photons, plant_unit="cm", estimator=estimator, threads=threads,
                        seed=seed, targets=["Leaf", "Bud"], cone_rays=cones,
                        organs={"Leaf": bush.LEAF_MATERIAL, "Internode": bush.LEAF_MATERIAL[0],
@@ -69,7 +69,8 @@ def main():
     ap.add_argument("--photons", type=float, default=1e6)
     ap.add_argument("--estimators", nargs="+", default=["nee", "weighted", "analog"])
     ap.add_argument("--threads", type=int, default=None)
-    ap.add_argument("--cones", type=float, default=4.0, help="LightModel's cone_rays (nee; 0: picks only, as before)")
+    ap.add_argument("--cones", type=float, default=None,
+                    help="LightModel's cone_rays (nee; default: 4 from 1,000 targets, i.e. 4 roses; 0: picks only)")
     ap.add_argument("--out", default=None, help="folder for canopy.csv and canopy.png")
     args = ap.parse_args()
     rows = []

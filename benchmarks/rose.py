@@ -143,7 +143,7 @@ def main():
     ap.add_argument("--images", type=float, default=None,
                     help="next events through a mirror per vertex, on average (default: LightModel's, 0.2)")
     ap.add_argument("--cones", type=float, default=None,
-                    help="rays into far organ clusters' cones per vertex (default: LightModel's cone_rays, 4; 0: none)")
+                    help="rays into far organ clusters' cones per vertex (default: LightModel's: none below 1,000 targets)")
     ap.add_argument("--lpy", action="store_true",
                     help="grow lsystems/rose.lpy in the real L-Py (needs L-Py/PlantGL) and time where a step goes")
     ap.add_argument("--model", default=None,

@@ -64,7 +64,7 @@ C_FULL = 0.25
 @helper
 def ray_mean(cones, total):
     """The mean number of cone rays at a vertex whose cones hold ``total`` = C of its light (see :data:`C_FULL`),
-    ``cones`` the setting (:attr:`lpy_light.simulate.KernelScene.nee_cones`)."""
+    ``cones`` the setting (:attr:`lpy_light.simulate.KernelScene.nee_cones`, :func:`lpy_light.simulate.cones_for`)."""
     return cones * min(1.0, math.sqrt(total / C_FULL))
 
 

@@ -141,10 +141,12 @@ class LightModel:
         of their light that way, and counting it held over half their variance:
         0.05-1 events per vertex give the same σ, each 0.1 costing ~0.1 s per
         step (``benchmarks/rose.py --images``).
-    cone_rays : float
+    cone_rays : float or None
         With ``estimator="nee"``: rays per vertex into the cones of the clusters of organs the vertex is far
-        from, the first organ met tallied (:mod:`lpy_light.kernel.cones`; default 4, fewer where the cones
-        hold little of the vertex's light; 0: picks serve those organs too).  Leaves and other large targets
+        from, the first organ met tallied (:mod:`lpy_light.kernel.cones`; fewer where the cones hold little of
+        the vertex's light; 0: picks serve those organs too).  Default None: 4 for scenes of 1,000 organ
+        targets or more (a canopy), else 0 (:func:`lpy_light.simulate.cones_for`: a single plant's few hundred
+        targets gain less than the rays cost).  Leaves and other large targets
         get their light from across the chamber this way; a pick is one target in n, a cone ray is not, and it
         does not aim at an organ hidden behind others.  Rose (``benchmarks/rose.py --photons 1.15e6``): leaves'
         p90 σ 2.6 → 1.5 %, buds' median 4.4 → 3.3 %, a step 4.1 → 6.3 s; 16 roses (``benchmarks/canopy.py``):
@@ -169,7 +171,7 @@ class LightModel:
                  estimator: str = "nee", lamp_flux=None, normalisation_photons: int = 1_000_000,
                  progress=None, nee_picks: int = 2, targets=None, mirror_events: float = 0.2,
                  precision: float | None = None, lamp_scale=1.0, colour_top: float | None = None,
-                 one_sided_organs: bool = False, cone_rays: float = 4.0):
+                 one_sided_organs: bool = False, cone_rays: float | None = None):
         self.chamber = scene if hasattr(scene, "triangles") else load_scene(resolve_scene(str(scene)))
         if plant_unit not in UNITS:
             raise InputError("unknown plant_unit %r (use one of %s)" % (plant_unit, ", ".join(UNITS)))
@@ -190,9 +192,9 @@ class LightModel:
         if not 0 <= float(mirror_events) <= 64:
             raise InputError("mirror_events must be between 0 and 64 (next events through a mirror per vertex)")
         self.mirror_events = float(mirror_events)
-        if not 0 <= float(cone_rays) <= 64:
+        if cone_rays is not None and not 0 <= float(cone_rays) <= 64:
             raise InputError("cone_rays must be between 0 and 64 (rays into the organ clusters' cones per vertex)")
-        self.kscene.nee_cones = float(cone_rays)
+        self.kscene.nee_cones = None if cone_rays is None else float(cone_rays)
         self.targets = None if targets is None else {str(t) for t in ([targets] if isinstance(targets, str) else targets)}
         if self.targets is not None and not self.targets <= set(self.organ_materials):
             raise InputError("targets %s are not organ modules (organs: %s)"

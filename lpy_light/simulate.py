@@ -224,8 +224,8 @@ class KernelScene:
         self.nee_zones = 0.3        # two-step next events through the surface beside a disc, per vertex (0: none)
         self.nee_importance = True  # next events to organs: picks by importance (kernel.importance), organ zones
         self.nee_organ_zones = 0.5  # two-step next events through the organ surface beside an organ, per vertex
-        self.nee_cones = 4.0        # rays into the cones of the organ clusters a vertex is far from, per vertex at most
-                                    # (kernel.cones; 0: picks among all clusters instead)
+        self.nee_cones = None       # rays into the cones of the organ clusters a vertex is far from, per vertex at most
+                                    # (kernel.cones; 0: picks among all clusters instead; None: cones_for(targets))
         tris = chamber.triangles
         area = 0.5 * np.linalg.norm(np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0]), axis=1)
         keep = np.isfinite(tris).all(axis=(1, 2)) & (area > 0)
@@ -516,10 +516,11 @@ class KernelScene:
         if self.organ_events is not None:      # a plant's organs are the targets (LightModel)
             ev = self.organ_events
             far = ev.weight
-            if self.nee_cones > 0:        # large targets served by cone rays from vertices far from their cluster
+            cones = cones_for(len(self.targets.kind)) if self.nee_cones is None else float(self.nee_cones)
+            if cones > 0:        # large targets served by cone rays from vertices far from their cluster
                 far = np.where(cone_served(self.targets.area, ev.clusters), 0.0, ev.weight)
             organs = ev._replace(weight=f64(ev.weight), far_weight=f64(far), cluster_weight=cluster_sums(far, ev.clusters),
-                                 cones=float(self.nee_cones), zones=ev.zones._replace(picks=float(self.nee_organ_zones)))
+                                 cones=cones, zones=ev.zones._replace(picks=float(self.nee_organ_zones)))
         return scene, NextEvents(targets, mirrors, zones, control, organs)
 
     def trace(self, seed: int, first: int, count: int, records=None):
@@ -535,6 +536,21 @@ class KernelScene:
 
 #: a kernel not ready after this many seconds is being compiled (loading numba's cache takes well under it)
 COMPILE_NOTE_AFTER = 1.0
+
+
+#: cone rays per vertex (:mod:`kernel.cones`) by default, for scenes of at least :data:`CONE_TARGETS` organ targets
+CONE_RAYS = 4.0
+#: below this many targets, picks alone serve the organs by default: a plant's few hundred targets are each drawn
+#: often enough from far vertices that the rays cost more than they save (the rose of ``lsystems/rose.lpy`` in
+#: L-Py at step 29, 1e6 photons: the step 2.6 → 6.3 s, leaves' σ 1.6 → 1.2 %, buds' 3.8 → 3.7 %; the
+#: procedural rose of ``benchmarks/rose.py``, 344 targets: leaves' σ² × time 2x lower, buds' 1.15x); a canopy of
+#: 4 roses (1,376 targets) and more gains (``benchmarks/canopy.py``: 16 roses' cost to leaves 3 % 3.5x lower)
+CONE_TARGETS = 1000
+
+
+def cones_for(n_targets: int) -> float:
+    """The default number of cone rays per vertex for a scene of ``n_targets`` organ targets (see above)."""
+    return CONE_RAYS if n_targets >= CONE_TARGETS else 0.0
 
 
 def compile_kernel(kscene: KernelScene, records=None, note=None) -> float:
