@@ -64,6 +64,8 @@ def _inline_only():
         optimize, finalize = library_cls._optimize_final_module, library_cls._finalize_final_module
         serialize, unserialize = library_cls.serialize_using_object_code, library_cls._unserialize.__func__
         executable, set_env = context_cls.get_executable, codegen_cls.set_env
+        for name in ("_finalize_dynamic_globals", "_verify_declare_only_symbols", "serialize_using_bitcode"):
+            getattr(library_cls, name)            # used below: their absence means another numba
     except AttributeError:        # another numba: compile as it does
         return
     if getattr(context_cls.get_executable, "_inline_only", False):
