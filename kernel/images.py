@@ -13,8 +13,8 @@ Deposits in photons of weight, lengths in scene units, solid angles in steradian
 import math
 
 from .jit import helper
-from .nee import END_REL, INV_4PI, deposit, disc_point_by_solid_angle, mesh_point, sensor_point
-from .rays import hit_on_plane, magnitude, seen_share, set_ray
+from .nee import END_REL, INV_4PI, disc_point_by_solid_angle, mesh_point, seen_deposit, sensor_point
+from .rays import hit_on_plane, magnitude, set_ray
 from .records import SPECULAR_R, T_DISC, T_MESH2
 from .rng import uniform
 from .sampling import search_cdf
@@ -130,6 +130,20 @@ def leaving_pdf(v, cos_v, b, mat):
 
 
 @helper
+def leaving_towards(dx, dy, dz, n, mode):
+    """Leaving vertex v (unit normal ``n``, its ``mode``) along d = (dx, dy, dz), not normalised:
+    ``(|d|², cos_v, side)``, side 0 for an isotropic lamp and ±1 the side of a surface or emitter it leaves;
+    side NaN where no photon leaves that way (d null, or behind a Lambertian emitter)."""
+    L2 = dx * dx + dy * dy + dz * dz
+    if not L2 > 0.0:
+        return L2, 0.0, math.nan
+    cos_v = (dx * n[0] + dy * n[1] + dz * n[2]) / math.sqrt(L2)
+    if mode == 1 and cos_v <= 0.0:                     # V_LAMBERT: emits into its front only
+        return L2, cos_v, math.nan
+    return L2, cos_v, 0.0 if mode == 0 else (1.0 if cos_v > 0.0 else -1.0)
+
+
+@helper
 def last_leg(target, hit, omag, rows, geo, mat, tgt, photon, stats, n_out):
     """The last leg of an event through mirrors: from the last mirror's hit to the point x on the target.
     ``target`` = (t, g, x, y, z, nx, ny, nz) as :func:`image_target_point` gave it, ``hit`` = (triangle, point,
@@ -169,13 +183,8 @@ def last_leg(target, hit, omag, rows, geo, mat, tgt, photon, stats, n_out):
         return n_out
     stats.counters[C_SHADOW] += 1
     ox, oy, oz = hx + eps * tnx, hy + eps * tny, hz + eps * tnz
-    share = seen_share(g, geo, photon.scratch, (ox, oy, oz), (fx, fy, fz), d2 - tol, d2 + tol, tgt.ref[t],
-                       (px, py, pz))
-    if share == 0.0:
-        return n_out
-    for b in range(n_bands):
-        contrib[b] *= share
-    return deposit(t, g, cos_x, rows, geo, mat, tgt, photon, stats, n_out)
+    return seen_deposit(t, g, cos_x, ((ox, oy, oz), (fx, fy, fz), (px, py, pz), d2, tol), rows, geo, mat, tgt, photon,
+                        stats, n_out)
 
 
 @helper
@@ -251,14 +260,9 @@ def image_event(v, n_draw, stat0, geo, mat, sens, tgt, mir, photon, stats):
             continue
         if kind != T_MESH2 and (px - rx) * snx + (py - ry) * sny + (pz - rz) * snz >= 0.0:
             continue                                   # would reach the sensor (one-sided mesh) from behind
-        dx, dy, dz = jx - vx, jy - vy, jz - vz
-        L2 = dx * dx + dy * dy + dz * dz
-        if not L2 > 0.0:
+        L2, cos_v, side = leaving_towards(jx - vx, jy - vy, jz - vz, (nx, ny, nz), mode)
+        if math.isnan(side):
             continue
-        cos_v = (dx * nx + dy * ny + dz * nz) / math.sqrt(L2)
-        if mode == 1 and cos_v <= 0.0:                 # V_LAMBERT: emits into its front only
-            continue
-        side = 0.0 if mode == 0 else (1.0 if cos_v > 0.0 else -1.0)
         stats.nee_stats[stat0 + pl, 0] += 1
         tri, hx, hy, hz, tnx, tny, tnz, mm = mirror_ray((vx, vy, vz), vmag, (side * nx, side * ny, side * nz),
                                                         (jx, jy, jz), pl, geo, photon, state, stats)
@@ -340,14 +344,9 @@ def double_image_event(v, n_draw, stat0, geo, mat, sens, tgt, mir, photon, stats
             continue
         if kind != T_MESH2 and (px - r2x) * snx + (py - r2y) * sny + (pz - r2z) * snz >= 0.0:
             continue                                   # would reach the sensor (one-sided mesh) from behind
-        dx, dy, dz = kx - vx, ky - vy, kz - vz
-        L2 = dx * dx + dy * dy + dz * dz
-        if not L2 > 0.0:
+        L2, cos_v, side = leaving_towards(kx - vx, ky - vy, kz - vz, (nx, ny, nz), mode)
+        if math.isnan(side):
             continue
-        cos_v = (dx * nx + dy * ny + dz * nz) / math.sqrt(L2)
-        if mode == 1 and cos_v <= 0.0:
-            continue
-        side = 0.0 if mode == 0 else (1.0 if cos_v > 0.0 else -1.0)
         stats.nee_stats[stat0 + pl1, 0] += 1
         tri1, hx, hy, hz, tnx, tny, tnz, mm1 = mirror_ray((vx, vy, vz), vmag, (side * nx, side * ny, side * nz),
                                                           (kx, ky, kz), pl1, geo, photon, state, stats)

@@ -500,13 +500,23 @@ def target_event(v, pick, w, u, stat, geo, mat, sens, tgt, photon, stats, n_out)
     counters[C_SHADOW] += 1
     nee_stats[stat, 0] += 1
     ox, oy, oz = vx + side * eps * nx, vy + side * eps * ny, vz + side * eps * nz
-    share = seen_share(g, geo, photon.scratch, (ox, oy, oz), (dx, dy, dz), dist - tol, dist + tol, tgt.ref[t],
-                       (px, py, pz))
+    return seen_deposit(t, g, cos_x, ((ox, oy, oz), (dx, dy, dz), (px, py, pz), dist, tol), (stat, stat), geo, mat,
+                        tgt, photon, stats, n_out)
+
+
+@helper
+def seen_deposit(t, g, cos_x, leg, rows, geo, mat, tgt, photon, stats, n_out):
+    """The last leg of a next event to target t: ``leg`` = (origin, unit direction, x, its length, tolerance);
+    ``photon.contrib`` (B,) times the share of x that is seen (:func:`kernel.rays.seen_share`), deposited by
+    :func:`deposit` (triangle g, cosine ``cos_x``, ``rows``) unless nothing is.  Returns the new count."""
+    origin, direction, point, dist, tol = leg
+    share = seen_share(g, geo, photon.scratch, origin, direction, dist - tol, dist + tol, tgt.ref[t], point)
     if share == 0.0:
         return n_out
-    for b in range(n_bands):
+    contrib = photon.contrib
+    for b in range(contrib.shape[0]):
         contrib[b] *= share
-    return deposit(t, g, cos_x, (stat, stat), geo, mat, tgt, photon, stats, n_out)
+    return deposit(t, g, cos_x, rows, geo, mat, tgt, photon, stats, n_out)
 
 
 @helper
