@@ -58,6 +58,7 @@ from .rng import n_draws, seed_stream, uniform
 from .sampling import cosine_hemisphere, mirror, phong_lobe
 from .tallies import (C_BATCHES, C_CAND_OVERFLOW, C_LOST, C_RAYS, N_COUNTERS, fate_rows, flush,  # noqa: F401
                       record, record_all)
+from .warm import share_compile
 from .zones import zone_event
 
 _TFAR_MAX = 3.0e38
@@ -101,11 +102,14 @@ def trace_chunk(scene, nee, scratch, seed, first, count, tallies, stats):
 
     ``scratch``: the address of this thread's Embree block (:func:`kernel.embree.new_scratch`).  Photon i's
     random stream is a function of ``(seed, i)`` only.  Allocates this chunk's work arrays
-    (:func:`work_arrays`) and runs :func:`trace_photons`, the one compiled function Python calls.
+    (:func:`work_arrays`) and runs :func:`trace_photons`, the one compiled function Python calls (compiled on
+    the process's first call, its helpers on two cores where numba's cache lacks it: :mod:`kernel.warm`).
     """
     photon, accum, cvw = work_arrays(scene, nee, scratch, tallies)
-    trace_photons(scene, nee, None if nee is None else nee.organs, seed, first, count, tallies, stats, photon, accum,
-                  cvw)
+    args = (scene, nee, None if nee is None else nee.organs, seed, first, count, tallies, stats, photon, accum, cvw)
+    if not trace_photons.overloads:         # the process's first call: a first compile uses two cores
+        share_compile(trace_photons, args)
+    trace_photons(*args)
 
 
 def work_arrays(scene, nee, scratch, tallies):
