@@ -12,7 +12,8 @@ A helper's code is only ever linked into its callers, so its own library is kept
 (:func:`_inline_only`): numba would otherwise optimise each helper's whole subtree at every level of calls
 and turn each into machine code that nothing calls (~4-5 s of the nee kernel's ~24 s cold compile).  The entry
 point's module, with every helper linked in, is optimised once and compiled as before: the same machine code
-(the kernel's digests are bitwise unchanged).
+(the kernel's digests are bitwise unchanged).  On a first run the helpers compile on two cores
+(:mod:`kernel.warm`).
 """
 from numba import config, njit
 from numba.core.registry import CPUDispatcher

@@ -555,9 +555,10 @@ def cones_for(n_targets: int) -> float:
 
 def compile_kernel(kscene: KernelScene, records=None, note=None) -> float:
     """Make the kernel ready for ``records`` (default: ``kscene.records()``) by tracing no photon: numba
-    compiles :func:`~lpy_light.kernel.trace.trace_photons` for their types on the first run (~12 s for
-    ``nee``, ~3 s for ``weighted`` and ``analog``; then cached on disk, :func:`lpy_light.kernel.numba_cache_dir`)
-    or loads it from its cache (< 1 s), or finds it compiled in this process.
+    compiles :func:`~lpy_light.kernel.trace.trace_photons` for their types on the first run (~14 s for
+    ``nee`` on 2 cores, its helpers shared with a child process: :mod:`lpy_light.kernel.warm`; ~3 s for
+    ``weighted`` and ``analog``; then cached on disk, :func:`lpy_light.kernel.numba_cache_dir`) or loads it
+    from its cache (< 1 s), or finds it compiled in this process.
 
     ``note(text)`` is called once, from another thread, if that takes longer than
     :data:`COMPILE_NOTE_AFTER` seconds: a compile, which a progress line should name rather than count as
