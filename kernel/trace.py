@@ -107,9 +107,15 @@ def trace_chunk(scene, nee, scratch, seed, first, count, tallies, stats):
     """
     photon, accum, cvw = work_arrays(scene, nee, scratch, tallies)
     args = (scene, nee, None if nee is None else nee.organs, seed, first, count, tallies, stats, photon, accum, cvw)
-    if not trace_photons.overloads:         # the process's first call: a first compile uses two cores
+    kinds = (nee is None, nee is None or nee.organs is None)     # what sets the types (the arrays' are fixed)
+    if kinds not in _CALLED:                # a first call of these types: a compile uses two cores
         share_compile(trace_photons, args)
+        _CALLED.add(kinds)
     trace_photons(*args)
+
+
+#: the kinds of records (next events or not, organs or not) :func:`trace_chunk` has been called with
+_CALLED = set()
 
 
 def work_arrays(scene, nee, scratch, tallies):
