@@ -7,10 +7,21 @@ nee run; its own noise is subtracted in quadrature).  Writes CSV + a log-log PNG
 each estimator needs for 1% rms (from error ∝ t^-1/2) and the ratios between them.
 
     .venv/bin/python benchmarks/efficiency.py [--out runs/efficiency] [--threads 2] [--quick]
+
+With ``--targets``, instead: issue 23's four targets, each measured as a user would run it, one after the other
+(every sensor to 0.3 %; twelve bands to 1 %; the rose step of ``benchmarks/rose.py``; σ²·N from 1e6 to 1e7
+photons), and the kernel's ray rate against raw Embree's; writes ``targets.csv`` and ``targets.png`` (each
+figure against its goal):
+
+    .venv/bin/python benchmarks/efficiency.py --targets --out docs/efficiency
 """
 import argparse
 import csv
+import json
+import re
+import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -89,15 +100,125 @@ def rose_case(threads, quick, seed=7):
     return measure
 
 
+#: issue 23's targets: (name, unit, goal, True if the figure must be at most the goal)
+TARGETS = [("every sensor ≤ 0.3 % (run angers --precision 0.003), tracing", "s", 60.0, True),
+           ("12 bands ≤ 1 % (run angers-12bands), tracing", "s", 8.0, True),
+           ("rose step, 516 organs (rose.py --photons 1.15e6 --steps 5)", "s", 1.0, True),
+           ("rose step: leaves' p90 σ", "%", 3.0, True),
+           ("rose step: buds' median σ", "%", 3.0, True),
+           ("σ²·N, 1e7 over 1e6 photons (Angers, mean over sensors)", "x", 1.2, True),
+           ("kernel rays/s over raw Embree's (rtcIntersect1, 2 threads; goal of the speed issue)", "x", 0.8, False)]
+
+
+def _cli_seconds(*args):
+    """Tracing seconds (the run's own, as the issue's figures), the command's wall seconds (a fresh process:
+    imports, scene, pilot), photons and the σ reached of ``lpy-light run ARGS``."""
+    with tempfile.TemporaryDirectory() as tmp:
+        t = time.perf_counter()
+        subprocess.run([str(Path(sys.executable).with_name("lpy-light")), "run", *args, "--quiet", "--out", tmp],
+                       capture_output=True, text=True, check=True)
+        wall = time.perf_counter() - t
+        summary = json.loads((Path(tmp) / "summary.json").read_text())
+    sigma = summary["relative_sigma"]
+    return (summary["seconds"], wall, summary["photons"],
+            "σ median %.2f %%, largest %.2f %%" % (100 * sigma["median"], 100 * sigma["max"]))
+
+
+def _rose_step():
+    """The last step of ``benchmarks/rose.py --photons 1.15e6 --steps 5``: (s, leaves' p90 σ %, buds' median σ %)."""
+    p = subprocess.run([sys.executable, str(Path(__file__).with_name("rose.py")), "--photons", "1.15e6", "--steps", "5"],
+                       capture_output=True, text=True, check=True)
+    last = [line.split() for line in p.stdout.splitlines() if re.match(r"\s*4\s+\d+", line)][-1]
+    return float(last[3]), float(last[8].rstrip("%")), float(last[10].rstrip("%"))
+
+
+def _sigma2n_ratio(threads):
+    """Mean over the Angers sensors of σ²·N at 1e7 photons over its value at 1e6 (seed 1), and both values."""
+    ks = simulate.KernelScene(load_scene(resolve_scene("angers")), estimator="nee")
+    ks.prune_next_events(threads=threads)
+    values = []
+    for n in (1_000_000, 10_000_000):
+        result = simulate.run(ks, n, seed=1, threads=threads)
+        ppfd, std = result.sensors()
+        values.append(float(np.mean((std[:, 0] / ppfd[:, 0]) ** 2 * result.photons)))
+    return values[1] / values[0], values
+
+
+def targets(out: Path, threads: int):
+    """Measure the targets (:data:`TARGETS`) one after the other; write targets.csv and targets.png."""
+    measured, notes = [], []
+    for args in (("angers", "--precision", "0.003"), ("angers-12bands",)):
+        seconds, wall, photons, sigma = _cli_seconds(*args)
+        measured.append(seconds)
+        notes.append("tracing; the whole command %.1f s; %.3g photons; %s" % (wall, photons, sigma))
+    step, leaves, buds = _rose_step()
+    measured += [step, leaves, buds]
+    notes += ["last of 5 steps, 2 threads", "", ""]
+    ratio, values = _sigma2n_ratio(threads)
+    measured.append(ratio)
+    notes.append("%.1f at 1e6, %.1f at 1e7" % tuple(values))
+    from raw_embree import measure as raw_measure   # written beside this file
+    raw = raw_measure(threads=(threads,), repeat=2)["by_threads"][threads]
+    measured.append(raw["kernel_vs_binding_kernel"])
+    notes.append("kernel %.3g rays/s, raw Embree on the kernel's scene %.3g" % (raw["kernel"], raw["binding_kernel"]))
+    rows = []
+    for (name, unit, goal, at_most), value, note in zip(TARGETS, measured, notes):
+        met = value <= goal if at_most else value >= goal
+        rows.append({"target": name, "unit": unit, "measured": round(value, 4), "goal": goal,
+                     "goal_is": "at most" if at_most else "at least", "met": met, "note": note})
+        print("%-62s %8.3g %-2s goal %s %g  %s  %s" % (name, value, unit, "≤" if at_most else "≥", goal,
+                                                       "met" if met else "NOT met", note), flush=True)
+    with open(out / "targets.csv", "w", newline="") as fh:
+        w = csv.DictWriter(fh, fieldnames=list(rows[0]))
+        w.writeheader()
+        w.writerows(rows)
+    plot_targets(out, threads)
+
+
+def plot_targets(out: Path, threads: int):
+    """targets.png from targets.csv in ``out``: each figure against its goal (no matplotlib: nothing)."""
+    try:
+        import matplotlib
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        return
+    with open(out / "targets.csv", newline="") as fh:
+        rows = [dict(r, measured=float(r["measured"]), goal=float(r["goal"]), met=r["met"] == "True")
+                for r in csv.DictReader(fh)]
+    fig, ax = plt.subplots(figsize=(10, 4.2))
+    share = [r["measured"] / r["goal"] if r["goal_is"] == "at most" else r["goal"] / r["measured"] for r in rows]
+    y = np.arange(len(rows))[::-1]
+    ax.barh(y, share, color=["tab:green" if r["met"] else "tab:red" for r in rows])
+    ax.axvline(1.0, color="k", lw=1)
+    for yi, r, x in zip(y, rows, share):
+        ax.text(x * 1.04, yi, "%.3g %s (goal %s %g)" % (r["measured"], r["unit"], "≤" if r["goal_is"] == "at most"
+                                                          else "≥", r["goal"]), va="center", fontsize=8)
+    ax.set_yticks(y, [r["target"] for r in rows], fontsize=8)
+    ax.set_xscale("log")
+    ax.set_xlim(0.5, max(share) * 2.5)
+    ax.xaxis.set_major_formatter(matplotlib.ticker.FormatStrFormatter("%g"))
+    ax.xaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
+    ax.set_xticks([0.5, 1, 2, 4])
+    ax.set_xlabel("measured ÷ goal (goal ÷ measured for the ray rate): ≤ 1 is met")
+    ax.set_title("Issue 23's targets, %d threads, one run each" % threads, fontsize=10)
+    fig.tight_layout()
+    fig.savefig(out / "targets.png", dpi=110)
+    print("wrote %s and %s" % (out / "targets.csv", out / "targets.png"))
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", default="runs/efficiency")
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--quick", action="store_true", help="short ladders and references (a smoke test)")
     ap.add_argument("--seed", type=int, default=7, help="seed of the measured runs (the references keep theirs)")
+    ap.add_argument("--targets", action="store_true", help="issue 23's targets instead (targets.csv, targets.png)")
     args = ap.parse_args()
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
+    if args.targets:
+        return targets(out, args.threads)
     rows = []
     for case, make in (("angers", angers_case), ("rose", rose_case)):
         measure = make(args.threads, args.quick, args.seed)
