@@ -12,7 +12,8 @@ the developers (:func:`record`, ``python scripts/compile_plan.py``) in ``compile
 for each entry-point signature, its direct helper calls (module, name, argument types, seconds to compile).
 A stale or unreadable plan costs time, never results: a helper compiled for types the entry point does not
 use is never linked, and one the plan lacks is compiled when the entry point asks for it, as without a plan.
-The machine code is the same either way (``tests/test_kernel_digests.py``).
+The numbers are the same either way, bit for bit (``tests/test_warm.py``); the machine code may differ in
+its symbols' names and hence in details such as the stack frame's layout.
 """
 from __future__ import annotations
 
