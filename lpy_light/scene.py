@@ -192,11 +192,22 @@ def builtin_scenes() -> dict:
 
 
 def resolve_scene(name) -> Path:
-    """A scene file's path from a path or a built-in scene's name (``angers``, ``angers-12bands``, ...)."""
+    """A scene file's path from a path or a built-in scene's name (``angers``, ``angers-12bands``, ...).
+
+    A folder stands for the ``scene.toml`` in it, or its only ``.toml`` file; a folder with neither that has a
+    built-in scene's name (e.g. the results of ``run angers --out angers``) is not taken for a scene."""
     path = Path(name)
-    if path.exists():
-        return path
     scenes = builtin_scenes()
+    if path.is_dir():
+        found = [path / "scene.toml"] if (path / "scene.toml").is_file() else sorted(path.glob("*.toml"))
+        if len(found) == 1:
+            return found[0]
+        if str(name) not in scenes:
+            raise InputError("a folder, not a scene file: give its scene's .toml (%s)"
+                             % ("it has %d: %s" % (len(found), ", ".join(f.name for f in found)) if found
+                                else "it has none"), name)
+    elif path.exists():
+        return path
     if str(name) in scenes:
         return scenes[str(name)]
     raise InputError("scene file not found (built-in scenes: %s)" % ", ".join(scenes), name)

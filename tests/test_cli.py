@@ -123,3 +123,26 @@ def test_every_command_prints_its_help():
         text = sub.format_help()
         assert name in text
     assert "stops at 1%" in subs[0].choices["run"].format_help()
+
+
+def test_a_folder_stands_for_its_scene_and_a_results_folder_is_not_a_scene(tmp_path, monkeypatch):
+    """``run angers --out angers`` run twice: the second must not take the first's results folder for the
+    scene.  A folder holding one scene (``scene.toml``, or a single ``.toml``) stands for it; any other folder
+    is refused with its name."""
+    from lpy_light.errors import InputError
+    from lpy_light.scene import builtin_scenes, resolve_scene
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "angers").mkdir()
+    (tmp_path / "angers" / "summary.json").write_text("{}")
+    assert resolve_scene("angers") == builtin_scenes()["angers"]
+    (tmp_path / "mine").mkdir()
+    (tmp_path / "mine" / "chamber.toml").write_text("")
+    assert resolve_scene("mine").resolve() == tmp_path / "mine" / "chamber.toml"
+    (tmp_path / "mine" / "other.toml").write_text("")
+    with pytest.raises(InputError, match="it has 2: chamber.toml, other.toml"):
+        resolve_scene("mine")
+    (tmp_path / "mine" / "scene.toml").write_text("")
+    assert resolve_scene("mine").resolve() == tmp_path / "mine" / "scene.toml"
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(InputError, match="a folder, not a scene file.*it has none"):
+        resolve_scene("empty")
