@@ -563,9 +563,11 @@ def cmd_grow(args) -> int:
         if not args.quiet:
             reach = "" if "precision" not in step.extra else (
                 ", σ goal %s" % ("reached" if step.extra["precision_reached"] else "NOT reached"))
-            print("  step %d: %d organs, %d triangles, %d photons%s, %.2f s (%d shapes re-tessellated, %d reused)"
-                  % (step.step, len(step.organs), step.triangles, step.photons, reach, step.seconds, step.tessellated,
-                     step.reused), file=sys.stderr, flush=True)
+            compiled = step.extra.get("compile_seconds", 0.0)
+            compiled = "%.1f s of it compiling the kernel, first run only; " % compiled if compiled else ""
+            print("  step %d: %d organs, %d triangles, %d photons%s, %.2f s (%s%d shapes re-tessellated, %d reused)"
+                  % (step.step, len(step.organs), step.triangles, step.photons, reach, step.seconds, compiled,
+                     step.tessellated, step.reused), file=sys.stderr, flush=True)
 
     model.on_step = on_step
     out.mkdir(parents=True, exist_ok=True)

@@ -303,6 +303,7 @@ class LightModel:
     def _run(self, organs, photons):
         n = _photons(photons) if photons is not None else self.photons
         t0 = time.perf_counter()
+        compiled = getattr(self.kscene, "compile_seconds", 0.0)
         if not organs:                         # nothing to light yet (a seedling before its first organ)
             self.step += 1
             return StepResult(self.step - 1, {}, 0, time.perf_counter() - t0, 0, 0, 0)
@@ -333,6 +334,9 @@ class LightModel:
             step.extra["precision_reached"] = bool(result.extra.get("precision_reached", not read.any()))
         if outside:
             step.extra["outside_chamber"] = outside
+        compiled = getattr(self.kscene, "compile_seconds", 0.0) - compiled
+        if compiled > 0:              # the kernel compiled for these organs (first run only), within the step's time
+            step.extra["compile_seconds"] = compiled
         self.step += 1
         return step
 

@@ -224,6 +224,7 @@ class KernelScene:
         self.nee_zones = 0.3        # two-step next events through the surface beside a disc, per vertex (0: none)
         self.nee_importance = True  # next events to organs: picks by importance (kernel.importance), organ zones
         self.nee_organ_zones = 0.5  # two-step next events through the organ surface beside an organ, per vertex
+        self.compile_seconds = 0.0  # seconds spent compiling the kernel for this scene (:func:`compile_kernel`)
         self.nee_cones = None       # rays into the cones of the organ clusters a vertex is far from, per vertex at most
                                     # (kernel.cones; 0: picks among all clusters instead; None: cones_for(targets))
         tris = chamber.triangles
@@ -562,7 +563,7 @@ def compile_kernel(kscene: KernelScene, records=None, note=None) -> float:
 
     ``note(text)`` is called once, from another thread, if that takes longer than
     :data:`COMPILE_NOTE_AFTER` seconds: a compile, which a progress line should name rather than count as
-    tracing.  Returns the seconds it took."""
+    tracing (and which is added to ``kscene.compile_seconds``).  Returns the seconds it took."""
     start = time.perf_counter()
     done = threading.Event()
 
@@ -577,7 +578,10 @@ def compile_kernel(kscene: KernelScene, records=None, note=None) -> float:
     finally:
         done.set()
         watcher.join()
-    return time.perf_counter() - start
+    seconds = time.perf_counter() - start
+    if seconds > COMPILE_NOTE_AFTER:            # a compile: counted on the scene, for a growth step to report
+        kscene.compile_seconds = getattr(kscene, "compile_seconds", 0.0) + seconds
+    return seconds
 
 
 def default_threads() -> int:

@@ -69,3 +69,22 @@ def test_a_precision_run_gives_no_time_left_before_its_first_sigma(tmp_path):
     lines = [line for line in out.getvalue().splitlines() if "photons" in line]
     assert "first estimate still to come" in lines[0] and "s left" not in lines[0]
     assert len(lines) > 2 and "s left" in lines[-1]
+
+
+def test_a_growth_step_says_how_long_the_kernel_compiled_in_it(tmp_path, monkeypatch):
+    """A growth step whose organs need the kernel compiled (the first step with organ targets, once per machine)
+    says how much of its time that was (``lpy-light grow`` prints it), and a step with the kernel ready says
+    nothing."""
+    import trimesh
+
+    from lpy_light.light import LightModel
+    rad = ("void plastic grey\n0\n0\n5 .5 .5 .5 0 0\n\nvoid light lamp\n0\n0\n3 10 10 10\n\n"
+           + box("grey", (0, 0, 0), (1000, 1000, 1100)) + lamp_rectangle("lamp", (500, 500), 100, 1000))
+    model = LightModel(write_scene(tmp_path, rad, [(500, 500, 500, 50, 0, 0, 1)]), organs={"Leaf": {"reflectance": 0.5}},
+                       lamp_flux=[1.0], plant_unit="mm", position=(500, 500, 0), photons=2_000)
+    leaf = trimesh.creation.icosphere(subdivisions=1, radius=30.0).apply_translation((0, 0, 400))
+    organs = model.organs_from_meshes({1: (leaf, {"reflectance": 0.5}, "Leaf")})
+    model.run(organs)                                    # compiled (or loaded) now
+    assert "compile_seconds" not in model.run(organs).extra
+    monkeypatch.setattr(simulate, "COMPILE_NOTE_AFTER", -1.0)   # now any readiness check counts as a compile
+    assert model.run(organs).extra["compile_seconds"] > 0
