@@ -25,7 +25,8 @@ import subprocess
 import sys
 from pathlib import Path
 
-#: the recorded plan: {(entry module, entry name, entry argument types): [(module, name, argument types, s)]}
+#: the recorded plan: (numba's version, {(entry module, entry name, entry argument types): [(module, name,
+#: argument types, s)]})
 PLAN = Path(__file__).with_name("compile_plan.pkl")
 #: seconds a child process takes to start (imports) before it compiles: its share is that much smaller
 CHILD_START = 1.0
@@ -33,14 +34,19 @@ CHILD_START = 1.0
 MIN_SHARED = 3.0
 
 
+def read_plan(plan_path=PLAN):
+    """(the numba version it was recorded with, the plan: see :data:`PLAN`); raises if unreadable."""
+    with open(plan_path, "rb") as f:
+        version, plan = pickle.load(f)
+    return version, plan
+
+
 def plan_for(dispatcher, args, plan_path=PLAN):
     """The recorded helper calls of ``dispatcher`` for ``args``' types, or None (none recorded, no plan,
-    a plan this numba cannot read)."""
+    a plan this numba cannot read: another numba's types may differ, and then only the shortcut is lost)."""
     try:
-        with open(plan_path, "rb") as f:
-            plan = pickle.load(f)
         sig = tuple(dispatcher.typeof_pyval(a) for a in args)
-        return plan.get(_entry_key(dispatcher, sig))
+        return read_plan(plan_path)[1].get(_entry_key(dispatcher, sig))
     except Exception:       # noqa: BLE001 -- any failure only means no shortcut
         return None
 

@@ -60,9 +60,11 @@ def main():
                 if c[:3] not in merged or merged[c[:3]][3] < c[3]:
                     merged[c[:3]] = c
             plan[key] = list(merged.values())
+    import numba
+
     from lpy_light.kernel import warm
     with open(warm.PLAN, "wb") as f:
-        pickle.dump(plan, f)
+        pickle.dump((numba.__version__, plan), f)
     print("wrote %s (%d entry signatures: %s helper calls)" % (warm.PLAN, len(plan),
                                                              ", ".join(str(len(c)) for c in plan.values())))
 

@@ -1,12 +1,13 @@
 """A first run's compile on two cores (:mod:`kernel.warm`): the recorded plan is that of today's kernel, the
 helpers it shares out are all the entry point needs, and the kernel so compiled gives the same numbers."""
-import hashlib
-import json
 import os
 import pickle
 import subprocess
 import sys
 from pathlib import Path
+
+import numba
+import pytest
 
 from lpy_light.kernel import warm
 
@@ -51,17 +52,19 @@ def test_the_plan_is_current_and_a_shared_compile_gives_the_same_kernel(tmp_path
     with numba's defaults had it, and traced at half the speed: numba's cache key ignores the flags)."""
     found_serial, shared_serial, digest_serial, nrt_serial = _run("serial", tmp_path)
     found_shared, shared, digest_shared, nrt_shared = _run("shared", tmp_path)
-    with open(warm.PLAN, "rb") as f:
-        plan = pickle.load(f)
+    assert digest_shared == digest_serial
+    assert nrt_serial == nrt_shared == 0       # helpers compiled as the loop's callees: no reference counting
     assert shared_serial == [False] and len(found_serial) == 1
+    version, plan = warm.read_plan()
+    if version != numba.__version__:           # another numba's types may differ: the shortcut is lost, not more
+        pytest.skip("the plan was recorded with numba %s, this is %s: python scripts/compile_plan.py records it "
+                    "for this one" % (version, numba.__version__))
     (entry, calls), = found_serial.items()
     planned = {c[:3] for c in plan.get(entry, [])}
     missing = [c[:2] for c in calls if c[:3] not in planned]
     assert not missing, "helpers not in the plan (run scripts/compile_plan.py): %s" % missing
     if warm._cpus() >= 2:
         assert shared == [True] and found_shared == {}
-    assert digest_shared == digest_serial
-    assert nrt_serial == nrt_shared == 0       # helpers compiled as the loop's callees: no reference counting
 
 
 def test_shares_go_to_whoever_finishes_first():
