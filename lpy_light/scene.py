@@ -563,7 +563,6 @@ def build_chamber(prims, sensors=None, bands=None, optical=None, specularities=N
     later surface of ``prims`` repeats is left out (SEC2's reading).
     """
     physics = physics or Physics()
-    n_bands = 1 if bands is None else len(bands)
     materials: list[Material] = []
     current: dict[str, int] = {}
     skipped_types: dict[str, object] = {}
