@@ -103,7 +103,8 @@ def trace_chunk(scene, nee, scratch, seed, first, count, tallies, stats):
     ``scratch``: the address of this thread's Embree block (:func:`kernel.embree.new_scratch`).  Photon i's
     random stream is a function of ``(seed, i)`` only.  Allocates this chunk's work arrays
     (:func:`work_arrays`) and runs :func:`trace_photons`, the one compiled function Python calls (compiled on
-    the process's first call, its helpers on two cores where numba's cache lacks it: :mod:`kernel.warm`).
+    the first call with each kind of records, its helpers on two cores where numba's cache lacks it:
+    :mod:`kernel.warm`).
     """
     photon, accum, cvw = work_arrays(scene, nee, scratch, tallies)
     args = (scene, nee, None if nee is None else nee.organs, seed, first, count, tallies, stats, photon, accum, cvw)
