@@ -30,9 +30,17 @@ def _box_gap2(lo, hi, i, c):
 
 
 @njit(cache=True)
-def _pairs(lo, hi, center, radius, targets, cell, out_tri, out_t):
-    """Count (and, if ``out_tri`` is long enough, write) the pairs (triangle, target) whose triangle's bounding
-    box is within ``radius[t]`` of ``center[t]``, for t in ``targets``."""
+def _grown(a):
+    """``a`` (int64) in an array twice as long."""
+    b = np.empty(2 * a.shape[0], np.int64)
+    b[:a.shape[0]] = a
+    return b
+
+
+@njit(cache=True)
+def _pairs(lo, hi, center, radius, targets, cell):
+    """The pairs (triangle, target) whose triangle's bounding box is within ``radius[t]`` of ``center[t]``, for t
+    in ``targets``, in that order: two int64 arrays, found in one pass (the output grows as it fills)."""
     n_tri = lo.shape[0]
     keys = np.empty(n_tri, np.int64)
     wide = np.zeros(n_tri, np.bool_)
@@ -49,14 +57,16 @@ def _pairs(lo, hi, center, radius, targets, cell, out_tri, out_t):
     sorted_keys = keys[order]
     wide_list = np.flatnonzero(wide)
     n = 0
-    write = out_tri.shape[0] > 0
+    out_tri = np.empty(16 + 4 * targets.shape[0], np.int64)
+    out_t = np.empty(16 + 4 * targets.shape[0], np.int64)
     for t in targets:
         c = center[t]
         r2 = radius[t] * radius[t]
         for i in wide_list:
             if _box_gap2(lo, hi, i, c) < r2:
-                if write:
-                    out_tri[n], out_t[n] = i, t
+                if n == out_tri.shape[0]:
+                    out_tri, out_t = _grown(out_tri), _grown(out_t)
+                out_tri[n], out_t[n] = i, t
                 n += 1
         # a small triangle near c has its centre within radius + cell (its half-diagonal is < cell) of c
         k = int(math.ceil((radius[t] + cell) / cell))
@@ -75,10 +85,11 @@ def _pairs(lo, hi, center, radius, targets, cell, out_tri, out_t):
                         if ox != ix or oy != iy or oz != iz:
                             continue            # another cell with the same key: met in its own turn
                         if _box_gap2(lo, hi, i, c) < r2:
-                            if write:
-                                out_tri[n], out_t[n] = i, t
+                            if n == out_tri.shape[0]:
+                                out_tri, out_t = _grown(out_tri), _grown(out_t)
+                            out_tri[n], out_t[n] = i, t
                             n += 1
-    return n
+    return out_tri[:n].copy(), out_t[:n].copy()
 
 
 def near_pairs(lo, hi, center, radius, targets):
@@ -89,12 +100,8 @@ def near_pairs(lo, hi, center, radius, targets):
     if len(targets) == 0 or len(lo) == 0:
         return empty, empty
     cell = max(float(np.median(radius[targets])), 1e-30)
-    args = (np.ascontiguousarray(lo, np.float64), np.ascontiguousarray(hi, np.float64),
-            np.ascontiguousarray(center, np.float64), np.ascontiguousarray(radius, np.float64), targets, cell)
-    n = _pairs(*args, empty, empty)
-    tri, t = np.empty(n, np.int64), np.empty(n, np.int64)
-    _pairs(*args, tri, t)
-    return tri, t
+    return _pairs(np.ascontiguousarray(lo, np.float64), np.ascontiguousarray(hi, np.float64),
+                  np.ascontiguousarray(center, np.float64), np.ascontiguousarray(radius, np.float64), targets, cell)
 
 
 @njit(cache=True)
