@@ -45,10 +45,18 @@ def plan_for(dispatcher, args, plan_path=PLAN):
     """The recorded helper calls of ``dispatcher`` for ``args``' types, or None (none recorded, no plan,
     a plan this numba cannot read: another numba's types may differ, and then only the shortcut is lost)."""
     try:
-        sig = tuple(dispatcher.typeof_pyval(a) for a in args)
-        return read_plan(plan_path)[1].get(_entry_key(dispatcher, sig))
+        return _plan_for(dispatcher, _signature(dispatcher, args), plan_path)
     except Exception:       # noqa: BLE001 -- any failure only means no shortcut
         return None
+
+
+def _plan_for(dispatcher, sig, plan_path=PLAN):
+    return read_plan(plan_path)[1].get(_entry_key(dispatcher, sig))
+
+
+def _signature(dispatcher, args):
+    """numba's argument types of a call of ``dispatcher`` with ``args``."""
+    return tuple(dispatcher.typeof_pyval(a) for a in args)
 
 
 def _entry_key(dispatcher, sig):
@@ -58,14 +66,16 @@ def _entry_key(dispatcher, sig):
 def is_ready(dispatcher, args) -> bool:
     """Is ``dispatcher`` compiled for ``args`` in this process, or in numba's cache?"""
     try:
-        sig = tuple(dispatcher.typeof_pyval(a) for a in args)
-        if sig in dispatcher.overloads:
-            return True
-        cache = dispatcher._cache
-        key = cache._index_key(sig, dispatcher.targetctx.codegen())
-        return key in cache._cache_file._load_index()
+        return _is_ready(dispatcher, _signature(dispatcher, args))
     except Exception:       # noqa: BLE001 -- unknown: compile as numba would
         return True
+
+
+def _is_ready(dispatcher, sig) -> bool:
+    if sig in dispatcher.overloads:
+        return True
+    cache = dispatcher._cache
+    return cache._index_key(sig, dispatcher.targetctx.codegen()) in cache._cache_file._load_index()
 
 
 def shares(calls, child_start=CHILD_START):
@@ -108,10 +118,16 @@ def share_compile(dispatcher, args, plan_path=PLAN) -> bool:
     """Before ``dispatcher`` compiles for ``args``: if it is not ready (:func:`is_ready`), a plan is recorded
     for these types and a second core is free, compile the plan's helper calls, a share in a child process
     and the rest here, and wait for the child.  Returns whether a child shared the work."""
-    if _cpus() < 2 or is_ready(dispatcher, args):
+    if _cpus() < 2 or not _is_python(sys.executable):
         return False
-    calls = plan_for(dispatcher, args, plan_path)
-    if not calls or sum(c[3] for c in calls) < MIN_SHARED or not _is_python(sys.executable):
+    try:
+        sig = _signature(dispatcher, args)
+        if _is_ready(dispatcher, sig):
+            return False
+        calls = _plan_for(dispatcher, sig, plan_path)
+    except Exception:       # noqa: BLE001 -- unknown state or no plan: compile as numba would
+        return False
+    if not calls or sum(c[3] for c in calls) < MIN_SHARED:
         return False
     mine, theirs = shares(calls)
     entry = dispatcher.py_func.__module__, dispatcher.py_func.__qualname__
@@ -138,7 +154,8 @@ def _is_python(executable) -> bool:
 
 
 def _start_child(entry, calls):
-    """A child process compiling ``calls`` (as ``entry``'s callees) into numba's cache (the same cache folder as this process's)."""
+    """A child process compiling ``calls`` (as ``entry``'s callees) into numba's cache, the same cache folder
+    as this process's."""
     from numba.core import config
     env = dict(os.environ)
     if config.CACHE_DIR:
@@ -177,8 +194,8 @@ def record(entries):
             stack.append((ts, ev))
             continue
         t0, start = stack.pop()
-        if not stack or id(stack[0][1].data["dispatcher"]) not in watched or len(stack) != 1:
-            continue
+        if len(stack) != 1 or id(stack[0][1].data["dispatcher"]) not in watched:
+            continue                            # not a direct call of a watched entry point
         d, parent = start.data["dispatcher"], stack[0][1].data["dispatcher"]
         name = (d.py_func.__module__, d.py_func.__qualname__)
         if name in _HELPERS:
