@@ -28,15 +28,31 @@ LEAF_MATERIAL = ("FeuilleVieille_Sup", "FeuilleVieille_Inf")
 
 
 def _frame(heading):
-    h = heading / np.linalg.norm(heading)
+    h = _unit(heading)
     a = np.array([1.0, 0, 0]) if abs(h[0]) < 0.9 else np.array([0, 1.0, 0])
-    l = np.cross(h, a)
-    l /= np.linalg.norm(l)
+    l = _unit(np.cross(h, a))
     return h, l, np.cross(h, l)
 
 
 def _rot(axis, angle):
-    return trimesh.transformations.rotation_matrix(angle, axis)[:3, :3]
+    """Rotation matrix by ``angle`` about ``axis`` (Rodrigues), written out: no BLAS call (np.dot, @, a 1-d
+    np.linalg.norm), whose rounding depends on the machine's BLAS kernel, so the bush is the same bit for bit
+    everywhere (tests/test_kernel_digests.py pins its light)."""
+    x, y, z = np.asarray(axis, float) / math.sqrt(sum(float(c) * float(c) for c in axis))
+    c, s = math.cos(angle), math.sin(angle)
+    t = 1.0 - c
+    return np.array([[c + x * x * t, x * y * t - z * s, x * z * t + y * s],
+                     [y * x * t + z * s, c + y * y * t, y * z * t - x * s],
+                     [z * x * t - y * s, z * y * t + x * s, c + z * z * t]])
+
+
+def _apply(R, v):
+    """``R @ v`` for a (3, 3) matrix and a (3,) vector, without BLAS (see :func:`_rot`)."""
+    return R[:, 0] * v[0] + R[:, 1] * v[1] + R[:, 2] * v[2]
+
+
+def _unit(v):
+    return v / math.sqrt(float(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]))
 
 
 def blade(length, width=0.43):
@@ -67,14 +83,13 @@ def rose(stage: int, max_stage: int):
                 return
             length = 3.0 * grow
             cyl = trimesh.creation.cylinder(radius=0.25 / (order + 1), height=length, sections=8)
-            R = np.column_stack([l, u, h])            # cylinder's z axis along the heading
-            v = cyl.vertices @ R.T + pos + h * length / 2
+            v = _place(cyl.vertices, pos + h * length / 2, l, u, h)    # cylinder's z axis along the heading
             organs[key[0]] = ((v, cyl.faces), LEAF_MATERIAL[0], "Internode")
             key[0] += 1
             pos = pos + h * length
             roll = _rot(h, math.radians(144 * (rank + 1)))
-            side = roll @ l
-            leaf_dir = _rot(np.cross(h, side), math.radians(55)) @ h
+            side = _apply(roll, l)
+            leaf_dir = _apply(_rot(np.cross(h, side), math.radians(55)), h)
             lh, ll, lu = _frame(leaf_dir)
             bv, bf = blade(7.0 * grow)
             organs[key[0]] = ((_place(bv, pos, lh, ll, lu), bf), LEAF_MATERIAL, "Leaf")
@@ -83,7 +98,7 @@ def rose(stage: int, max_stage: int):
             organs[key[0]] = ((bud.vertices + pos + 0.3 * side, bud.faces), LEAF_MATERIAL[0], "Bud")
             key[0] += 1
             if order < 2 and rank >= 2:
-                branch = _rot(np.cross(h, side), math.radians(40)) @ h
+                branch = _apply(_rot(np.cross(h, side), math.radians(40)), h)
                 axis(pos, branch, order + 1, first_node + rank + 1)
 
     axis((0, 0, 0), (0, 0, 1), 0, 0)

@@ -14,6 +14,7 @@ import numpy as np
 from .nee import MESH_OWN, NEAR, NEAR_FLOOR, NEAR_PICKED
 from .neighbours import near_pairs, nearest_other
 from .records import T_DISC, T_MESH1, T_MESH2, T_QUAD, Clusters, Targets, f64, i64
+from .vectors import norm
 
 
 def build_targets(sens, sens_area, sens_bound, n_receivers_rows, tri_receiver, tri_verts, tri_two_sided,
@@ -90,7 +91,7 @@ def build_targets(sens, sens_area, sens_bound, n_receivers_rows, tri_receiver, t
             nee_tri.append(order[lo_g:hi_g])
             nee_cdf.append(cdf)
             center.append((r_lo[g] + r_hi[g]) / 2)
-            img_near2.append(float((NEAR * np.linalg.norm(r_hi[g] - r_lo[g]) / 2) ** 2))
+            img_near2.append(float((NEAR * norm(r_hi[g] - r_lo[g]) / 2) ** 2))
             near2.append(0.0)     # no exclusion: a triangle near v is sampled by solid angle (kernel.nee)
             receiver_target[r] = len(kind) - 1
     center = f64(np.reshape(center, (-1, 3)))

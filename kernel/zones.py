@@ -20,6 +20,7 @@ from .rays import hit_on_plane, magnitude, set_ray, visible
 from .records import V_ISOTROPIC, V_LAMBERT, V_SURFACE, Zones
 from .rng import uniform
 from .tallies import C_SHADOW
+from .vectors import dot, norm
 
 
 def near_zones(tri_verts, tri_pid, n_chamber, near_start, near_list, near_r2, center, disc_radius, normal):
@@ -60,17 +61,17 @@ def near_zones(tri_verts, tri_pid, n_chamber, near_start, near_list, near_r2, ce
     for (t, pid), k in sorted(pairs.items()):
         v = tri_verts[k]
         m = np.cross(v[1] - v[0], v[2] - v[0])
-        m = m / np.linalg.norm(m)
-        h = float(np.dot(center[t] - v[0], m))
+        m = m / norm(m)
+        h = dot(center[t] - v[0], m)
         rho2 = near_r2[t] - h * h
         if not (rho2 > 0.0 and abs(h) < ZONE_HEIGHT * disc_radius[t]):
             continue
         foot = center[t] - h * m
-        lean = normal[t] - np.dot(normal[t], m) * m           # the disc's normal along the plane
-        if np.dot(foot - center[t], normal[t]) + math.sqrt(rho2) * np.linalg.norm(lean) <= 0.0:
+        lean = normal[t] - dot(normal[t], m) * m           # the disc's normal along the plane
+        if dot(foot - center[t], normal[t]) + math.sqrt(rho2) * norm(lean) <= 0.0:
             continue                                           # the zone is all behind the disc
         e1 = np.cross(m, [1.0, 0.0, 0.0] if abs(m[0]) < 0.9 else [0.0, 1.0, 0.0])
-        e1 /= np.linalg.norm(e1)
+        e1 /= norm(e1)
         e2 = np.cross(m, e1)
         hs2 = max(h * h, disc_radius[t] ** 2)
         rows_f.append(np.concatenate([foot, m, e1, e2, [hs2, math.log1p(rho2 / hs2)]]))

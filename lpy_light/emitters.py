@@ -26,6 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .geometry import triangle_areas
+from .kernel.vectors import norm as vnorm
 
 EMIT_LINE, EMIT_TRIANGLE, EMIT_CYLINDER, EMIT_POINT, EMIT_SPHERE = 0, 1, 2, 3, 4
 
@@ -70,7 +71,7 @@ class EmitterBuilder:
                 self._add(EMIT_TRIANGLE, tri, math.pi * radiance * float(area), name)   # inf, not a warning
 
     def cylinder(self, p0, p1, radius, radiance, name):
-        area = 2 * math.pi * radius * float(np.linalg.norm(np.subtract(p1, p0)))
+        area = 2 * math.pi * radius * vnorm(np.subtract(p1, p0))
         kind = EMIT_LINE if self.lamps == "line" else EMIT_CYLINDER
         self._add(kind, [p0, p1, [radius, 0, 0]], math.pi * radiance * area, name)
 

@@ -13,6 +13,8 @@ import math
 
 import numpy as np
 
+from .kernel.vectors import norm as vnorm
+
 #: coordinates beyond this (in scene units) are refused: Embree traces in single precision
 MAX_COORDINATE = 1e12
 
@@ -41,7 +43,7 @@ def triangulate_polygon(points) -> np.ndarray:
     if len(p) < 3:
         raise ValueError("polygon has fewer than 3 distinct vertices")
     normal = newell_normal(p)
-    norm = np.linalg.norm(normal)
+    norm = vnorm(normal)
     scale = np.abs(p).max() + np.ptp(p, axis=0).max()
     if not norm > 1e-12 * scale * scale:
         raise ValueError("polygon has zero area")
@@ -119,10 +121,10 @@ def _blocks(q: np.ndarray, a, b, c) -> np.ndarray:
 def _ring_points(center, axis, radius, n):
     """n points on a circle, counter-clockwise seen from +axis; radius chosen so that the
     n-gon has the circle's area."""
-    axis = np.asarray(axis, float) / np.linalg.norm(axis)
+    axis = np.asarray(axis, float) / vnorm(axis)
     helper = np.array([1.0, 0, 0]) if abs(axis[0]) < 0.9 else np.array([0, 1.0, 0])
     t = np.cross(axis, helper)
-    t /= np.linalg.norm(t)
+    t /= vnorm(t)
     b = np.cross(axis, t)
     r = radius * math.sqrt(2 * math.pi / (n * math.sin(2 * math.pi / n)))
     phi = 2 * math.pi * np.arange(n) / n
@@ -137,7 +139,7 @@ def cylinder(p0, p1, radius, segments: int = 24, inward: bool = False) -> np.nda
     p0, p1 = np.asarray(p0, float), np.asarray(p1, float)
     axis = p1 - p0
     ring = _ring_points(np.zeros(3), axis, 1.0, segments)
-    ring *= radius * (math.pi / (segments * math.sin(math.pi / segments))) / np.linalg.norm(ring[0])
+    ring *= radius * (math.pi / (segments * math.sin(math.pi / segments))) / vnorm(ring[0])
     a, b = p0 + ring, p1 + ring
     a2, b2 = np.roll(a, -1, axis=0), np.roll(b, -1, axis=0)
     tris = np.concatenate([np.stack([a, a2, b2], 1), np.stack([a, b2, b], 1)])
@@ -332,11 +334,11 @@ def mirror_planes(tris: np.ndarray, source: np.ndarray, specular: np.ndarray, tw
         if not specular[group].any():
             continue
         n0 = n[group[0]]
-        if not np.all(np.isfinite(n0)) or np.linalg.norm(n0) == 0:
+        if not np.all(np.isfinite(n0)) or vnorm(n0) == 0:
             continue
         p0 = tris[group[0], 0]
-        dist = np.abs((tris[group] - p0) @ n0)
-        parallel = np.abs(np.abs(n[group] @ n0) - 1.0)
+        dist = np.abs(np.einsum("ijk,k->ij", tris[group] - p0, n0))      # einsum, not BLAS: the same bits everywhere
+        parallel = np.abs(np.abs(np.einsum("ik,k->i", n[group], n0)) - 1.0)
         if dist.max() > rel_tol * scale or parallel.max() > 1e-9:
             continue                    # not flat: no image
         tri_plane[group] = len(points)

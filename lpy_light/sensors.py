@@ -21,6 +21,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .kernel.vectors import norm as vnorm
+
 DISC, QUAD = 0, 1
 _DISC_COLUMNS = ["X", "Y", "Z", "rayon_capteur", "Xnorm", "Ynorm", "Znorm"]
 _QUAD_COLUMNS = ["%s%d" % (a, i) for i in range(4) for a in "xyz"]
@@ -101,7 +103,7 @@ class Sensors:
                 n = self.normal[s]
                 helper = np.array([1.0, 0, 0]) if abs(n[0]) < 0.9 else np.array([0, 1.0, 0])
                 t = np.cross(n, helper)
-                t /= np.linalg.norm(t)
+                t /= vnorm(t)
                 b = np.cross(n, t)
                 h = self.radius[s] * BOUND_MARGIN
                 quads[s] = self.center[s] + h * np.array([-t - b, t - b, t + b, -t + b])
@@ -197,7 +199,7 @@ def read_sensors(path) -> Sensors:
         radius = np.zeros(S)
         for s in range(S):
             c = corners[s]
-            nrm = normal[s] / (np.linalg.norm(normal[s]) or 1)
+            nrm = normal[s] / (vnorm(normal[s]) or 1)
             if np.abs((c - center[s]) @ nrm).max() > 1e-6 * (np.ptp(c, 0).max() + np.abs(c).max()):
                 raise _error("quad sensor is not planar", path, source[s][1])
             for i in range(4):

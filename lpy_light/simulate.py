@@ -173,7 +173,10 @@ class Result:
     def combination(self, rows, weights):
         """Σ_b weights[b] · tally[row, b] and its standard error (bands' covariances included), each (len(rows),)."""
         w = np.asarray(weights, dtype=float)
-        value = self.tally[rows] @ w
+        t = self.tally[rows]
+        value = np.zeros(len(t))
+        for b, wb in enumerate(w):      # not t @ w: BLAS's rounding depends on the machine's kernel, this does not
+            value += t[:, b] * wb
         var = np.einsum("b,rbc,c->r", w, self.covariance(rows), w)
         return value, np.sqrt(np.maximum(var, 0.0))
 

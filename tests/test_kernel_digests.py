@@ -21,6 +21,9 @@ from __future__ import annotations
 
 import hashlib
 import json
+import os
+import platform
+import subprocess
 import sys
 from pathlib import Path
 
@@ -137,7 +140,10 @@ def cases(tmp: Path) -> dict:
 # (kernel.cones, thirteenth session; a plant's default is none, so rose-nee is unchanged by them); then the two
 # rose cases with the organ zones' solid angles in one compiled loop (kernel.organ_zones.zone_measures,
 # fourteenth session): numpy's einsum and arctan2 round differently; the rose's organs differ by ≤ 2e-16
-# relative (≤ 4e-15 σ), 339 of 516 bitwise the same (3e5 photons, 5 steps)
+# relative (≤ 4e-15 σ), 339 of 516 bitwise the same (3e5 photons, 5 steps); then the two rose cases with no
+# BLAS call left on the way from meshes to numbers (fifteenth session: kernel.vectors, LightResult.combination,
+# benchmarks/rose.py's rotations): before, numpy's BLAS kernel, which OpenBLAS picks by processor, changed the
+# rose's digests between an AVX-512 Intel machine (SkylakeX) and an AMD one (Haswell kernel)
 PINNED = {
     "angers-weighted": "5b880b19bca006d238e3918ea965cc5ada7a727bb738cfbc354761ae687b9b81",
     "angers-nee": "793fcdff765279220c0e43c9115dcb01a4b84c4d2be964c709c5b4d5cf03a427",
@@ -149,14 +155,30 @@ PINNED = {
     "room-line-weighted": "c7d42d71b5c767043f1e8ec90838e2f94856d9283c8c561cd7be56c0fa3a5a6b",
     "room-lambertian-nee": "dd12af7cbbbfac8ad4bcdc87cfd3a4f252703757db83e628fd737a2da2776b93",
     "room-lambertian-analog": "22c08b31f224eb5c161b766a925e443d33ca195c3ccb7f1120776b4a908fcb42",
-    "rose-nee": "5b2f00bfff9cebe6a4de7de6a651858cc0403bfe461957da56748e54548410d0",
-    "rose-cones": "5edb6839e14c6a2623445a86aaab182d9c038dddff2a6648c20ccce4f23cbb32",
+    "rose-nee": "cfc58e40d97441b87eaff5fd04209deed17bf8c6fd8217c58d0161882a82d12d",
+    "rose-cones": "c494aaabe1effa76e094813d7f0655c0e4ed5b3d71adc31c6aa39beedd258a6b",
 }
 
 
 @pytest.mark.parametrize("case", list(cases(Path("."))))
 def test_outputs_bitwise_as_pinned(case, tmp_path):
     assert cases(tmp_path)[case]() == PINNED.get(case), "%s: the kernel's numbers changed" % case
+
+
+@pytest.mark.skipif(platform.machine().lower() not in ("x86_64", "amd64"), reason="OpenBLAS's x86-64 kernels")
+@pytest.mark.parametrize("kernel", ["Prescott", "Nehalem"])
+def test_outputs_the_same_under_another_blas_kernel(kernel):
+    """The same numbers whichever BLAS kernel numpy runs: OpenBLAS picks its kernel by processor (Haswell,
+    SkylakeX, Zen, ...), and they round a dot product differently.  The cases run again in a child process with
+    a kernel forced (``OPENBLAS_CORETYPE``: two that every x86-64-v2 processor runs, and that rounded the rose
+    differently); before the mesh path's BLAS calls were removed (``kernel.vectors``), the rose's digests
+    differed between them.  (This holds for the numpy of ``.venv``; under numpy 1.26's OpenBLAS, in the L-Py
+    venv, trimesh's own ``icosphere`` and ``cylinder``, which build the procedural rose, already differ by kernel.)"""
+    env = dict(os.environ, OPENBLAS_CORETYPE=kernel)
+    out = subprocess.run([sys.executable, __file__], env=env, capture_output=True, text=True, timeout=600)
+    assert out.returncode == 0, out.stderr[-3000:]
+    changed = {k for k, v in json.loads(out.stdout).items() if v != PINNED.get(k)}
+    assert not changed, "numbers that depend on the BLAS kernel: %s" % sorted(changed)
 
 
 if __name__ == "__main__":
