@@ -76,32 +76,29 @@ def _pairs(lo, hi, center, radius, targets, cell):
         dims[k] = int(extent[k])
     n_cells = dims[0] * dims[1] * dims[2]
     count = np.zeros(n_cells + 1, np.int64)              # triangles filed per cell, then where each cell starts
-    for i in range(n_tri):
-        if wide[i]:
-            continue
-        x0, x1 = _cell_range(lo[i, 0], hi[i, 0], origin, cell, dims, 0)
-        y0, y1 = _cell_range(lo[i, 1], hi[i, 1], origin, cell, dims, 1)
-        z0, z1 = _cell_range(lo[i, 2], hi[i, 2], origin, cell, dims, 2)
-        for ix in range(x0, x1 + 1):
-            for iy in range(y0, y1 + 1):
-                for iz in range(z0, z1 + 1):
-                    count[(ix * dims[1] + iy) * dims[2] + iz + 1] += 1
-    for c in range(n_cells):
-        count[c + 1] += count[c]
-    filed = np.empty(count[n_cells], np.int64)
-    fill = count[:n_cells].copy()
-    for i in range(n_tri):
-        if wide[i]:
-            continue
-        x0, x1 = _cell_range(lo[i, 0], hi[i, 0], origin, cell, dims, 0)
-        y0, y1 = _cell_range(lo[i, 1], hi[i, 1], origin, cell, dims, 1)
-        z0, z1 = _cell_range(lo[i, 2], hi[i, 2], origin, cell, dims, 2)
-        for ix in range(x0, x1 + 1):
-            for iy in range(y0, y1 + 1):
-                for iz in range(z0, z1 + 1):
-                    c = (ix * dims[1] + iy) * dims[2] + iz
-                    filed[fill[c]] = i
-                    fill[c] += 1
+    filed = np.empty(0, np.int64)
+    fill = np.empty(0, np.int64)
+    for filing in range(2):                              # count the triangles of each cell, then file them
+        if filing:
+            for c in range(n_cells):
+                count[c + 1] += count[c]
+            filed = np.empty(count[n_cells], np.int64)
+            fill = count[:n_cells].copy()
+        for i in range(n_tri):
+            if wide[i]:
+                continue
+            x0, x1 = _cell_range(lo[i, 0], hi[i, 0], origin, cell, dims, 0)
+            y0, y1 = _cell_range(lo[i, 1], hi[i, 1], origin, cell, dims, 1)
+            z0, z1 = _cell_range(lo[i, 2], hi[i, 2], origin, cell, dims, 2)
+            for ix in range(x0, x1 + 1):
+                for iy in range(y0, y1 + 1):
+                    for iz in range(z0, z1 + 1):
+                        c = (ix * dims[1] + iy) * dims[2] + iz
+                        if filing:
+                            filed[fill[c]] = i
+                            fill[c] += 1
+                        else:
+                            count[c + 1] += 1
     wide_list = np.flatnonzero(wide)
     seen = np.full(n_tri, -1, np.int64)                  # the last target that tested each triangle
     n = 0
