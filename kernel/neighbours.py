@@ -4,7 +4,8 @@ each target, and each target's nearest other target.
 A canopy of 16 roses has ~8 000 organ targets among ~340 000 triangles; :func:`kernel.targets.near_discs`
 and :func:`kernel.targets.mesh_near_radius` ran these queries in numpy, one target at a time, for ~8 s of a
 step (``docs/performance.md``).  Here they run compiled (numba, cached on disk like the kernel), over a
-uniform grid in which each triangle is filed in the cells its bounding box overlaps: O(targets · neighbours).  Lengths in scene units.
+uniform grid in which each triangle is filed in the cells its bounding box overlaps: O(targets · neighbours).
+Lengths in scene units.
 """
 import math
 
