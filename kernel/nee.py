@@ -125,6 +125,35 @@ def mesh_point(t, u1, u2, u3, tgt, geo):
 
 
 @helper
+def _faces(vx, vy, vz, g, geo):
+    """Does triangle g's front (its normal's side) face point v?"""
+    return ((geo.verts[g, 0, 0] - vx) * geo.normal[g, 0] + (geo.verts[g, 0, 1] - vy) * geo.normal[g, 1]
+            + (geo.verts[g, 0, 2] - vz) * geo.normal[g, 2]) < 0.0
+
+
+@helper
+def facing_triangle(vx, vy, vz, t, u, tgt, geo):
+    """A triangle of mesh target t whose front faces v, drawn by area among those from a uniform ``u``, and their
+    total area (scene units²); (-1, 0) if none faces v.  Two passes over t's triangles."""
+    first, count = tgt.first[t], tgt.count[t]
+    total = 0.0
+    for i in range(first, first + count):
+        if _faces(vx, vy, vz, tgt.tri[i], geo):
+            total += _tri_area(geo.verts[tgt.tri[i]], 0, 1, 2)
+    if not total > 0.0:
+        return -1, 0.0
+    goal, run, last = u * total, 0.0, -1
+    for i in range(first, first + count):
+        g = tgt.tri[i]
+        if _faces(vx, vy, vz, g, geo):
+            run += _tri_area(geo.verts[g], 0, 1, 2)
+            last = g
+            if run >= goal:
+                break
+    return last, total
+
+
+@helper
 def _triangle_by_solid_angle(vx, vy, vz, t, u, tgt, geo):
     """A triangle of mesh target t drawn in proportion to the solid angle it subtends from v, and the sum of
     those solid angles (sr); (-1, 0) if t is seen edge-on.  Two passes over t's triangles."""
@@ -419,6 +448,7 @@ def target_event(v, pick, w, u, stat, geo, mat, sens, tgt, photon, stats, n_out)
     kind = tgt.kind[t]
     g = -1
     omega = 0.0
+    area_t = tgt.area[t]
     if kind == T_DISC:
         s = tgt.ref[t]
         mx, my, mz = sens.normal[s, 0], sens.normal[s, 1], sens.normal[s, 2]
@@ -445,6 +475,15 @@ def target_event(v, pick, w, u, stat, geo, mat, sens, tgt, photon, stats, n_out)
             g, om_total = _triangle_by_solid_angle(vx, vy, vz, t, u3, tgt, geo)
             if g < 0:
                 return n_out
+        elif tgt.facing[t] != 0 and not near:
+            # from beyond NEAR radii only the triangles facing v can be seen (a closed mesh's far side is behind
+            # its near side; a one-sided mesh's back receives nothing): a triangle drawn by area among those,
+            # A_facing · |cos θ_x| / d² · p(ω) · V -- not half the points, on a bud, on its hidden side
+            g, area_t = facing_triangle(vx, vy, vz, t, u3, tgt, geo)
+            if g < 0:
+                return n_out
+            px, py, pz = tri_point(geo.verts[g], u1, u2)
+            om_total = 0.0
         else:
             # a triangle drawn by area: where v is near it (a large mesh), Ω_g · A / A_g · p(ω) · V, bounded
             g, px, py, pz = mesh_point(t, u1, u2, u3, tgt, geo)
@@ -465,7 +504,7 @@ def target_event(v, pick, w, u, stat, geo, mat, sens, tgt, photon, stats, n_out)
     cos_x = dx * mx + dy * my + dz * mz
     if kind != T_MESH2 and cos_x >= 0.0:
         return n_out          # sensors and one-sided receivers are met from the front only
-    geom = tscale * (omega if omega > 0.0 else tgt.area[t] * abs(cos_x) / dist2)
+    geom = tscale * (omega if omega > 0.0 else area_t * abs(cos_x) / dist2)
     cos_v = dx * nx + dy * ny + dz * nz
     if mode == V_ISOTROPIC:
         for b in range(n_bands):

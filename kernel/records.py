@@ -107,6 +107,9 @@ Targets = namedtuple("Targets", [
     "near_r2",       # (n,) float64: their near radius²
     "sensor_target",  # (S,) int64: each sensor's target, or -1
     "receiver_target",  # (R,) int64: each receiver's target, or -1
+    "facing",        # (n,) uint8: 1 where only the triangles facing a vertex beyond NEAR radii can be seen from it
+                     # (a one-sided mesh, or a closed one: its far side is hidden by its near side), so that
+                     # a point for a next event is drawn among those (kernel.nee.facing_triangle)
 ])
 
 Mirrors = namedtuple("Mirrors", [

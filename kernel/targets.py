@@ -11,7 +11,7 @@ import math
 
 import numpy as np
 
-from .nee import MESH_OWN, NEAR, NEAR_FLOOR, NEAR_PICKED
+from .nee import EXACT_TRIANGLES, MESH_OWN, NEAR, NEAR_FLOOR, NEAR_PICKED
 from .neighbours import near_pairs, nearest_other
 from .records import T_DISC, T_MESH1, T_MESH2, T_QUAD, Clusters, Targets, f64, i64
 from .vectors import norm
@@ -35,7 +35,7 @@ def build_targets(sens, sens_area, sens_bound, n_receivers_rows, tri_receiver, t
     sens_kind, sens_center = sens.kind, sens.center
     receiver_row0, absorbed_row0 = n_sensors, n_sensors + n_receivers_rows
     kind, row, abs_row, ref, first, count, area, center, near2 = [], [], [], [], [], [], [], [], []
-    img_near2 = []
+    img_near2, facing = [], []
     sensor_target = np.full(n_sensors, -1, np.int64)
     receiver_target = np.full(n_receivers_rows, -1, np.int64)
     nee_tri, nee_cdf = [], []
@@ -53,6 +53,7 @@ def build_targets(sens, sens_area, sens_bound, n_receivers_rows, tri_receiver, t
             img_near2.append(float((NEAR * sens_bound[s]) ** 2))
             near2.append(0.0 if sens_kind[s] == 0 else img_near2[-1])
             sensor_target[s] = len(kind) - 1
+            facing.append(0)
     if receivers and n_receivers_rows:
         # receivers' triangles grouped by receiver (stable: each in its own order), summed per group in numpy
         tri_area = 0.5 * np.linalg.norm(np.cross(tri_verts[:, 1] - tri_verts[:, 0], tri_verts[:, 2] - tri_verts[:, 0]),
@@ -70,6 +71,7 @@ def build_targets(sens, sens_area, sens_bound, n_receivers_rows, tri_receiver, t
         r_lo = np.minimum.reduceat(pts_lo, r_first) if len(a) else np.zeros((0, 3))
         r_hi = np.maximum.reduceat(pts_hi, r_first) if len(a) else np.zeros((0, 3))
         r_two = np.logical_and.reduceat(tri_two_sided[order].astype(bool), r_first) if len(a) else np.zeros(0, bool)
+        r_closed = closed_meshes(tri_verts[order], recv) if len(a) else np.zeros(0, bool)
         keep = r_total > 0
         if receiver_mask is not None:
             keep &= np.asarray(receiver_mask, bool)[r_of]
@@ -78,6 +80,7 @@ def build_targets(sens, sens_area, sens_bound, n_receivers_rows, tri_receiver, t
             r = int(r_of[g])
             lo_g, hi_g = r_first[g], r_first[g] + r_count[g]
             kind.append(T_MESH2 if r_two[g] else T_MESH1)
+            facing.append(1 if (not r_two[g] or r_closed[r]) and r_count[g] <= EXACT_TRIANGLES else 0)
             row.append(receiver_row0 + r)
             abs_row.append(absorbed_row0 + r)
             ref.append(r)
@@ -109,7 +112,47 @@ def build_targets(sens, sens_area, sens_bound, n_receivers_rows, tri_receiver, t
                    i64(count), f64(area), center, f64(near2), f64(img_near2),
                    i64(np.concatenate(nee_tri) if nee_tri else np.zeros(0)),
                    f64(np.concatenate(nee_cdf) if nee_cdf else np.zeros(0)),
-                   near_start, near_list, near_r2, sensor_target, receiver_target)
+                   near_start, near_list, near_r2, sensor_target, receiver_target,
+                   np.ascontiguousarray(facing, dtype=np.uint8))
+
+
+def closed_meshes(tris, group):
+    """(G,) bool, G = group.max() + 1: whether the triangles of each group (``tris`` (T, 3, 3), ``group`` (T,)
+    int, e.g. each triangle's receiver) form a closed surface wound outward -- every edge shared by exactly two
+    of its triangles, run in opposite directions by them (watertight, consistently wound), and a positive
+    enclosed volume.  Vertices are the same where their coordinates are equal (as a mesh's triangles share
+    them).  From a point outside such a surface only the triangles facing it can be seen."""
+    group = np.asarray(group, np.int64)
+    n_groups = int(group.max()) + 1 if len(group) else 0
+    closed = np.zeros(n_groups, bool)
+    if len(tris) == 0:
+        return closed
+    pts = np.ascontiguousarray(tris, np.float64).reshape(-1, 3)
+    keys = np.column_stack([np.repeat(group, 3).astype(np.float64), pts])        # a vertex is its group and place
+    _, vid = np.unique(keys, axis=0, return_inverse=True)
+    vid = vid.reshape(-1, 3)
+    a, b = vid, np.roll(vid, -1, axis=1)                                        # directed edges a -> b
+    g3 = np.repeat(group, 3)
+    n_v = int(vid.max()) + 1
+    fwd = (a.ravel() * n_v + b.ravel())                                          # (vertex ids are per group)
+    rev = (b.ravel() * n_v + a.ravel())
+    order = np.argsort(fwd, kind="stable")
+    sf = fwd[order]
+    unique_edge = np.ones(len(fwd), bool)                                         # each directed edge once
+    dup = np.flatnonzero(sf[1:] == sf[:-1])
+    unique_edge[order[dup]] = unique_edge[order[dup + 1]] = False
+    pos = np.minimum(np.searchsorted(sf, rev), len(sf) - 1)
+    paired = sf[pos] == rev                                                      # and its reverse there too
+    edge_ok = unique_edge & paired & (a.ravel() != b.ravel())
+    bad = np.zeros(n_groups, bool)
+    np.logical_or.at(bad, g3, ~edge_ok)
+    lo = np.full((n_groups, 3), np.inf)
+    np.minimum.at(lo, group, tris.min(axis=1))
+    p = tris - lo[group][:, None, :]                                              # (volumes about a nearby corner)
+    vol = np.einsum("ij,ij->i", p[:, 0], np.cross(p[:, 1], p[:, 2])) / 6.0
+    volume = np.bincount(group, weights=vol, minlength=n_groups)
+    present = np.bincount(group, minlength=n_groups) > 0
+    return present & ~bad & (volume > 0.0)
 
 
 def near_discs(tri_verts, center, disc_radius, factor=NEAR_PICKED, mesh_radius=None):
