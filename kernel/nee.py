@@ -134,23 +134,24 @@ def _faces(vx, vy, vz, g, geo):
 @helper
 def facing_triangle(vx, vy, vz, t, u, tgt, geo):
     """A triangle of mesh target t whose front faces v, drawn by area among those from a uniform ``u``, and their
-    total area (scene units²); (-1, 0) if none faces v.  Two passes over t's triangles."""
+    total area (scene units²); (-1, 0) if none faces v.  Two passes over t's triangles (a dot product each; the
+    areas are the targets' cumulative ones)."""
     first, count = tgt.first[t], tgt.count[t]
-    total = 0.0
+    share = 0.0
     for i in range(first, first + count):
         if _faces(vx, vy, vz, tgt.tri[i], geo):
-            total += _tri_area(geo.verts[tgt.tri[i]], 0, 1, 2)
-    if not total > 0.0:
+            share += tgt.tri_cdf[i] - (tgt.tri_cdf[i - 1] if i > first else 0.0)
+    if not share > 0.0:
         return -1, 0.0
-    goal, run, last = u * total, 0.0, -1
+    goal, run, last = u * share, 0.0, -1
     for i in range(first, first + count):
         g = tgt.tri[i]
         if _faces(vx, vy, vz, g, geo):
-            run += _tri_area(geo.verts[g], 0, 1, 2)
+            run += tgt.tri_cdf[i] - (tgt.tri_cdf[i - 1] if i > first else 0.0)
             last = g
             if run >= goal:
                 break
-    return last, total
+    return last, share * tgt.area[t]
 
 
 @helper
