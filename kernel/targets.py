@@ -71,10 +71,16 @@ def build_targets(sens, sens_area, sens_bound, n_receivers_rows, tri_receiver, t
         r_lo = np.minimum.reduceat(pts_lo, r_first) if len(a) else np.zeros((0, 3))
         r_hi = np.maximum.reduceat(pts_hi, r_first) if len(a) else np.zeros((0, 3))
         r_two = np.logical_and.reduceat(tri_two_sided[order].astype(bool), r_first) if len(a) else np.zeros(0, bool)
-        r_closed = closed_meshes(tri_verts[order], recv) if len(a) else np.zeros(0, bool)
         keep = r_total > 0
         if receiver_mask is not None:
             keep &= np.asarray(receiver_mask, bool)[r_of]
+        # closed two-sided meshes small enough for facing points (kernel.nee.facing_triangle); one-sided ones need
+        # no test
+        r_closed = np.zeros(int(recv.max()) + 1 if len(recv) else 0, bool)
+        test = np.repeat(keep & r_two & (r_count <= EXACT_TRIANGLES), r_count)
+        if test.any():
+            found = closed_meshes(tri_verts[order][test], recv[test])
+            r_closed[:len(found)] = found
         offset = 0
         for g in np.flatnonzero(keep):
             r = int(r_of[g])
@@ -128,11 +134,14 @@ def closed_meshes(tris, group):
     if len(tris) == 0:
         return closed
     pts = np.ascontiguousarray(tris, np.float64).reshape(-1, 3)
-    keys = np.column_stack([np.repeat(group, 3).astype(np.float64), pts])        # a vertex is its group and place
-    _, vid = np.unique(keys, axis=0, return_inverse=True)
+    g3 = np.repeat(group, 3)
+    srt = np.lexsort((pts[:, 2], pts[:, 1], pts[:, 0], g3))                     # a vertex is its group and place
+    new = np.ones(len(srt), bool)
+    new[1:] = (g3[srt][1:] != g3[srt][:-1]) | np.any(pts[srt][1:] != pts[srt][:-1], axis=1)
+    vid = np.empty(len(srt), np.int64)
+    vid[srt] = np.cumsum(new) - 1
     vid = vid.reshape(-1, 3)
     a, b = vid, np.roll(vid, -1, axis=1)                                        # directed edges a -> b
-    g3 = np.repeat(group, 3)
     n_v = int(vid.max()) + 1
     fwd = (a.ravel() * n_v + b.ravel())                                          # (vertex ids are per group)
     rev = (b.ravel() * n_v + a.ravel())
