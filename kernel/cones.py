@@ -129,6 +129,78 @@ def cone_direction(u0, u1, u2, total, n_k, cdf, at):
 
 
 @helper
+def first_target(origin, d, near, near_r2, geo, tgt, organs, photon, n_k, at):
+    """Trace a cone ray from ``origin`` (already off its surface) along unit ``d``: ``(t, triangle, cos θ_x)`` of
+    the first surface met if it is a target organ that cone rays serve from the point the cones were drawn
+    from (``cdf[at:]``, :func:`cone_cdf`), else t = -1.  ``near`` = (point, test): with test, a target whose
+    centre is within √``near_r2[t]`` of the point is served otherwise (an own event, or a counted crossing)."""
+    scratch, cdf, state = photon.scratch, photon.cdf, photon.state
+    rh = scratch + RAYHIT
+    set_ray(scratch, origin[0], origin[1], origin[2], d[0], d[1], d[2], _TFAR_MAX)
+    call_ptr3(geo.intersect, geo.scene, rh, scratch + ARGS)
+    gid = load_u32(rh + GEOM_ID)
+    if gid == INVALID_ID:
+        return -1, -1, 0.0
+    tri = load_u32(rh + PRIM_ID) + geo.geom_offset[gid]
+    rec = geo.receiver[tri]
+    if rec < 0 or tgt.receiver_target[rec] < 0:
+        return -1, -1, 0.0                        # the chamber, or an organ that is no target
+    bu, bv = load_f32(rh + HIT_U), load_f32(rh + HIT_V)
+    b0 = 1.0 - bu - bv
+    verts = geo.verts
+    hx = b0 * verts[tri, 0, 0] + bu * verts[tri, 1, 0] + bv * verts[tri, 2, 0]
+    hy = b0 * verts[tri, 0, 1] + bu * verts[tri, 1, 1] + bv * verts[tri, 2, 1]
+    hz = b0 * verts[tri, 0, 2] + bu * verts[tri, 1, 2] + bv * verts[tri, 2, 2]
+    if geo.cop_start[tri + 1] > geo.cop_start[tri]:   # coincident surfaces: as a photon picks among them
+        tri = pick_coplanar(tri, hx, hy, hz, d[0], d[1], d[2], geo, state)
+        rec = geo.receiver[tri]
+        if rec < 0 or tgt.receiver_target[rec] < 0:
+            return -1, -1, 0.0
+    t = tgt.receiver_target[rec]
+    px, py, pz, test = near
+    ex, ey, ez = px - tgt.center[t, 0], py - tgt.center[t, 1], pz - tgt.center[t, 2]
+    if test and ex * ex + ey * ey + ez * ez < near_r2[t]:
+        return -1, -1, 0.0                        # served by its own event there (or counted)
+    if organs.far_weight[t] > 0.0:
+        return -1, -1, 0.0                        # a small target: served by picks from every cluster
+    if cdf[at + n_k + CONE_DATA * organs.cluster_of[t] + 3] == 0.0:
+        return -1, -1, 0.0                        # its cluster is near: served by picks
+    cos_x = d[0] * geo.normal[tri, 0] + d[1] * geo.normal[tri, 1] + d[2] * geo.normal[tri, 2]
+    if tgt.kind[t] != T_MESH2 and cos_x >= 0.0:
+        return -1, -1, 0.0                        # a one-sided receiver, met from behind
+    return t, tri, cos_x
+
+
+@helper
+def leaving_sides(v, mat):
+    """How much of the light leaving vertex v goes to each side: ``(front, back)``, its material's largest
+    diffuse reflectance and transmittance over the bands ((1, 0) for a Lambertian emitter, (1, 1) isotropic)."""
+    mode, m = v[6], v[7]
+    if mode == V_SURFACE:
+        front, back = 0.0, 0.0
+        for b in range(mat.prob.shape[2]):
+            front = max(front, mat.prob[m, DIFFUSE_R, b])
+            back = max(back, mat.prob[m, DIFFUSE_T, b])
+        return front, back
+    if mode == V_LAMBERT:
+        return 1.0, 0.0
+    return 1.0, 1.0
+
+
+@helper
+def leaving(cos_v, mode, front, back):
+    """The density (1/sr) with which a photon leaves a vertex of ``mode`` at cosine ``cos_v`` to its normal, its
+    scattering probability aside (:func:`leaving_sides`' ``front``, ``back``: 0 where none leaves that side), and
+    the side it leaves: ``(p, ±1)``; p = 0 where no photon leaves that way."""
+    if mode == V_ISOTROPIC:
+        return INV_4PI, 1.0
+    if mode == V_LAMBERT:
+        return (cos_v / math.pi if cos_v > 0.0 else 0.0), 1.0
+    side = 1.0 if cos_v > 0.0 else -1.0
+    return (abs(cos_v) / math.pi if (front if side > 0.0 else back) > 0.0 else 0.0), side
+
+
+@helper
 def cone_events(v, stat, geo, mat, tgt, organs, photon, stats, n_out):
     """Rays from vertex ``v`` (:class:`~kernel.records.Vertex`) into the cones of the far clusters of organ
     targets (see above): a random whole number of them, of mean μ = :func:`ray_mean` (C); the deposits of those
@@ -137,19 +209,11 @@ def cone_events(v, stat, geo, mat, tgt, organs, photon, stats, n_out):
     vx, vy, vz, nx, ny, nz, mode, m, vscale, vtri = v
     cl = organs.clusters
     n_k = cl.radius.shape[0]
-    cdf, state, scratch, contrib, w = photon.cdf, photon.state, photon.scratch, photon.contrib, photon.w
+    cdf, state, contrib, w = photon.cdf, photon.state, photon.contrib, photon.w
     counters, nee_stats = stats.counters, stats.nee_stats
     n_bands = w.shape[0]
     at = tgt.kind.shape[0] + n_k            # after the picks' importances (kernel.importance.cluster_cdf)
-    if mode == V_SURFACE:
-        front, back = 0.0, 0.0
-        for b in range(n_bands):
-            front = max(front, mat.prob[m, DIFFUSE_R, b])
-            back = max(back, mat.prob[m, DIFFUSE_T, b])
-    elif mode == V_LAMBERT:
-        front, back = 1.0, 0.0
-    else:
-        front, back = 1.0, 1.0
+    front, back = leaving_sides(v, mat)
     total = cone_cdf(v, (front, back), cl, cdf, at)
     if not total > 0.0:
         return n_out
@@ -157,55 +221,18 @@ def cone_events(v, stat, geo, mat, tgt, organs, photon, stats, n_out):
     n_rays = n_draws(mean, state)
     vmag = max(abs(vx), abs(vy), abs(vz), vscale)
     n_near = tgt.near_start[vtri + 1] - tgt.near_start[vtri] if vtri >= 0 else 0
-    rh = scratch + RAYHIT
     for _ in range(n_rays):
         dx, dy, dz = cone_direction(uniform(state), uniform(state), uniform(state), total, n_k, cdf, at)
-        cos_v = dx * nx + dy * ny + dz * nz
-        if mode == V_ISOTROPIC:
-            p_leave, side = INV_4PI, 1.0
-        elif mode == V_LAMBERT:
-            if cos_v <= 0.0:
-                continue
-            p_leave, side = cos_v / math.pi, 1.0
-        else:
-            side = 1.0 if cos_v > 0.0 else -1.0
-            if (front if side > 0.0 else back) <= 0.0:
-                continue
-            p_leave = abs(cos_v) / math.pi
+        p_leave, side = leaving(dx * nx + dy * ny + dz * nz, mode, front, back)
+        if not p_leave > 0.0:
+            continue
         eps = side * geo.offset_rel * vmag
         counters[C_SHADOW] += 1
         nee_stats[stat, 0] += 1
-        set_ray(scratch, vx + eps * nx, vy + eps * ny, vz + eps * nz, dx, dy, dz, _TFAR_MAX)
-        call_ptr3(geo.intersect, geo.scene, rh, scratch + ARGS)
-        gid = load_u32(rh + GEOM_ID)
-        if gid == INVALID_ID:
+        t, tri, cos_x = first_target((vx + eps * nx, vy + eps * ny, vz + eps * nz), (dx, dy, dz),
+                                     (vx, vy, vz, n_near > 0), tgt.near_r2, geo, tgt, organs, photon, n_k, at)
+        if t < 0:
             continue
-        tri = load_u32(rh + PRIM_ID) + geo.geom_offset[gid]
-        rec = geo.receiver[tri]
-        if rec < 0 or tgt.receiver_target[rec] < 0:
-            continue                                  # the chamber, or an organ that is no target
-        bu, bv = load_f32(rh + HIT_U), load_f32(rh + HIT_V)
-        b0 = 1.0 - bu - bv
-        verts = geo.verts
-        hx = b0 * verts[tri, 0, 0] + bu * verts[tri, 1, 0] + bv * verts[tri, 2, 0]
-        hy = b0 * verts[tri, 0, 1] + bu * verts[tri, 1, 1] + bv * verts[tri, 2, 1]
-        hz = b0 * verts[tri, 0, 2] + bu * verts[tri, 1, 2] + bv * verts[tri, 2, 2]
-        if geo.cop_start[tri + 1] > geo.cop_start[tri]:   # coincident surfaces: as a photon picks among them
-            tri = pick_coplanar(tri, hx, hy, hz, dx, dy, dz, geo, state)
-            rec = geo.receiver[tri]
-            if rec < 0 or tgt.receiver_target[rec] < 0:
-                continue
-        t = tgt.receiver_target[rec]
-        ex, ey, ez = vx - tgt.center[t, 0], vy - tgt.center[t, 1], vz - tgt.center[t, 2]
-        if n_near > 0 and ex * ex + ey * ey + ez * ez < tgt.near_r2[t]:
-            continue                                  # served by its own event at v
-        if organs.far_weight[t] > 0.0:
-            continue                                  # a small target: served by picks from every cluster
-        if cdf[at + n_k + CONE_DATA * organs.cluster_of[t] + 3] == 0.0:
-            continue                                  # its cluster is near v: served by picks
-        cos_x = dx * geo.normal[tri, 0] + dy * geo.normal[tri, 1] + dz * geo.normal[tri, 2]
-        if tgt.kind[t] != T_MESH2 and cos_x >= 0.0:
-            continue                                  # a one-sided receiver, met from behind
         pdf = cone_pdf(dx, dy, dz, total, n_k, cdf, at)
         if not pdf > 0.0:
             continue

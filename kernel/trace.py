@@ -245,7 +245,7 @@ def trace_photons(scene, nee, organs, seed, first, count, tallies, stats, photon
                 # and through a mirror (if not cut at that mirror); the call itself is not free: only if drawn
                 n_img = n_draws(mir.picks, state) if img_on and room else 0
                 if n_img > 0:
-                    n_out = image_event(vertex, n_img, stat_planes, geo, mat, sens, tgt, mir, photon, stats)
+                    n_out = image_event(vertex, n_img, stat_planes, geo, mat, sens, tgt, mir, organs, photon, stats)
                     nh = record_all(n_out, nh, photon, accum)
                 n_img = n_draws(mir.picks2, state) if img2_on and room2 else 0
                 if n_img > 0:      # and through two mirrors

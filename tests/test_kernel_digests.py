@@ -146,7 +146,8 @@ def cases(tmp: Path) -> dict:
 # rose's digests between an AVX-512 Intel machine (SkylakeX) and an AMD one (Haswell kernel); then the two rose
 # cases with points on closed meshes (the buds) drawn among the triangles facing the vertex (kernel.nee.facing_triangle),
 # and with them the room's nee cases (its solid sensor is a one-sided mesh: the same points, its triangles' areas
-# now from the targets' cumulative areas, which round differently)
+# now from the targets' cumulative areas, which round differently); then the two rose cases with next events through
+# a mirror to organs drawn by importance seen from the vertex's image, and cone rays from it (sixteenth session)
 PINNED = {
     "angers-weighted": "5b880b19bca006d238e3918ea965cc5ada7a727bb738cfbc354761ae687b9b81",
     "angers-nee": "793fcdff765279220c0e43c9115dcb01a4b84c4d2be964c709c5b4d5cf03a427",
@@ -158,8 +159,8 @@ PINNED = {
     "room-line-weighted": "c7d42d71b5c767043f1e8ec90838e2f94856d9283c8c561cd7be56c0fa3a5a6b",
     "room-lambertian-nee": "cd73a7907c81ec744f1ee14fc1452ecc8d67bdc82f40691cef18f6ed6fb01fb1",
     "room-lambertian-analog": "22c08b31f224eb5c161b766a925e443d33ca195c3ccb7f1120776b4a908fcb42",
-    "rose-nee": "be531b9da7870882baa9a03eaf9cc4f2bcca01b20a4c98051cbbde02450beebc",
-    "rose-cones": "56038c01c1c01360400635ce7c54984d7d1c49f8ffc332b6bb567cca4d70f565",
+    "rose-nee": "ed49f1634fc088c22813d861207b98fc7274355a5c7aebdbd81fde5f9809217d",
+    "rose-cones": "9a7e623d2205a6959b82337897a4c72645f5d77c1cb1b9670371233f6aebbcdb",
 }
 
 
