@@ -140,18 +140,18 @@ MIRROR_WALL = ("void mirror silver\n0\n0\n3 0.9 0.9 0.9\n\n"
 def test_cone_rays_through_a_mirror_are_unbiased(tmp_path):
     """Beside a mirror wall, the far clusters' leaves get their light by way of the mirror from cone rays drawn
     from the vertex's image (:func:`kernel.images.image_cones`), the near clusters' from picks by importance
-    seen from the image: each organ's light and the sum agree with counting (|z| < 4; one event through a
-    mirror per vertex, 5x the default, so that those paths weigh).  Fails (tried): leaving out the plane's
-    probability p_k (sum z = -30, 89 organs beyond 3σ), and a ray from v that ends on the mirror instead of
-    beyond it (Embree then misses about half of the hits: sum z = -15)."""
+    seen from the image: each organ's light agrees with counting (|z| < 4; one event through a mirror per
+    vertex, 5x the default, so that those paths weigh).  Fails (tried): leaving out the plane's probability
+    p_k (89 organs beyond 3σ, the largest |z| 7.1), and a ray from v that ends on the mirror instead of beyond
+    it (Embree then misses about half of the hits: 26 organs beyond 3σ, the largest |z| 5.2).  (No test on
+    the organs' sum: one photon's cone rays light several leaves, so their errors are correlated and the sum's
+    σ is not the root of the sum of their σ²; its z spread over ±4 across seeds.)"""
     scene, organs = write_scene(tmp_path, ROOM + MIRROR_WALL), _canopy()
     cones, cones_sd, ks = _light(scene, organs, "nee", 200_000, 21, mirror_events=1.0)
     assert ks.records()[1].mirrors.picks == 1.0 and len(ks.records()[1].mirrors.plane) == 2
     counted, counted_sd, _ = _light(scene, organs, "weighted", 4_000_000, 22)
     z = (cones - counted) / np.hypot(cones_sd, counted_sd)
     assert np.all(np.abs(z) < 4), z
-    zs = (cones.sum() - counted.sum()) / math.hypot(np.sqrt((cones_sd ** 2).sum()), np.sqrt((counted_sd ** 2).sum()))
-    assert abs(zs) < 4, zs
 
 
 def test_cone_rays_by_default_for_a_canopy_only():

@@ -147,7 +147,8 @@ def cases(tmp: Path) -> dict:
 # cases with points on closed meshes (the buds) drawn among the triangles facing the vertex (kernel.nee.facing_triangle),
 # and with them the room's nee cases (its solid sensor is a one-sided mesh: the same points, its triangles' areas
 # now from the targets' cumulative areas, which round differently); then the two rose cases with next events through
-# a mirror to organs drawn by importance seen from the vertex's image, and cone rays from it (sixteenth session)
+# a mirror to organs drawn by importance seen from the vertex's image, and cone rays from it, and organ zone events
+# for the buds only, 0.25 per vertex (sixteenth session)
 PINNED = {
     "angers-weighted": "5b880b19bca006d238e3918ea965cc5ada7a727bb738cfbc354761ae687b9b81",
     "angers-nee": "793fcdff765279220c0e43c9115dcb01a4b84c4d2be964c709c5b4d5cf03a427",
@@ -159,8 +160,8 @@ PINNED = {
     "room-line-weighted": "c7d42d71b5c767043f1e8ec90838e2f94856d9283c8c561cd7be56c0fa3a5a6b",
     "room-lambertian-nee": "cd73a7907c81ec744f1ee14fc1452ecc8d67bdc82f40691cef18f6ed6fb01fb1",
     "room-lambertian-analog": "22c08b31f224eb5c161b766a925e443d33ca195c3ccb7f1120776b4a908fcb42",
-    "rose-nee": "ed49f1634fc088c22813d861207b98fc7274355a5c7aebdbd81fde5f9809217d",
-    "rose-cones": "9a7e623d2205a6959b82337897a4c72645f5d77c1cb1b9670371233f6aebbcdb",
+    "rose-nee": "bdcad10b19ba0cf94e6544e52ee21f3fcd85215687cf266b85b64c057e68183a",
+    "rose-cones": "3d9ba2edb19d351e247963c519e8bd95b99abdb3e0212e871452bc0bf29eca4b",
 }
 
 
