@@ -144,7 +144,7 @@ class LightModel:
     cone_rays : float or None
         With ``estimator="nee"``: rays per vertex into the cones of the clusters of organs the vertex is far
         from, the first organ met tallied (:mod:`lpy_light.kernel.cones`; fewer where the cones hold little of
-        the vertex's light; 0: picks serve those organs too).  Default None: 8 for scenes of 1,000 organ
+        the vertex's light; 0: picks serve those organs too).  Default None: 12 for scenes of 1,000 organ
         targets or more (a canopy), else 0 (:func:`lpy_light.simulate.cones_for`: a single plant's few hundred
         targets gain less than the rays cost).  Leaves and other large targets
         get their light from across the chamber this way; a pick is one target in n, a cone ray is not, and it

@@ -548,10 +548,11 @@ COMPILE_NOTE_AFTER = 1.0
 
 
 #: cone rays per vertex (:mod:`kernel.cones`) by default, for scenes of at least :data:`CONE_TARGETS` organ targets:
-#: 8 since the mirror's light comes by cone rays too (kernel.images.image_cones), which left the direct cone rays'
-#: own noise the leaves' largest term (``benchmarks/canopy.py``, cost to leaves' p90 3 %, 4 → 8 rays: 4 roses
-#: 15.6 / 15.8 → 14.3 / 12.7 CPU s, 9 roses 53.9 → 42.2, 16 roses 131 / 131 → 105 / 98; 16 rays 106, 32 138)
-CONE_RAYS = 8.0
+#: 12 since the mirror's light comes by cone rays too (kernel.images.image_cones) and organ zone events serve the
+#: buds only, which left the direct cone rays' own noise 98 % of the p90 leaf's variance on 16 roses
+#: (``benchmarks/canopy.py``, cost to leaves' p90 3 %, one seed: 16 roses 6 rays 100.7 CPU s, 8 90.1, 12 79.1,
+#: 16 80.2; 4 roses 8 rays 12.0, 12 10.6; with 4 rays, before the organ zones' change, 16 roses cost 131)
+CONE_RAYS = 12.0
 #: below this many targets, picks alone serve the organs by default: a plant's few hundred targets are each drawn
 #: often enough from far vertices that the rays cost more than they save (the rose of ``lsystems/rose.lpy`` in
 #: L-Py at step 29, 1e6 photons: the step 2.6 → 6.3 s, leaves' σ 1.6 → 1.2 %, buds' 3.8 → 3.7 %; the
