@@ -93,6 +93,12 @@ class StepResult:
     extra: dict = field(default_factory=dict)
 
 
+#: next events through a mirror per vertex by default (:class:`LightModel`'s ``mirror_events``): on the rose 0.05-1
+#: give the same σ; where cone rays are on (a canopy) half of it, 16 roses' cost to leaves' p90 3 % 76.5 / 80.0 →
+#: 70.0 / 73.4 CPU s (seeds 3 / 5), same σ (``benchmarks/canopy.py``)
+MIRROR_EVENTS = 0.2
+
+
 class LightModel:
     """A growth chamber ready to light a plant at every step.
 
@@ -134,13 +140,15 @@ class LightModel:
         still block, scatter and absorb light and still get their numbers, by
         counting the photons that reach them (larger σ, still unbiased); the
         shadow rays go to the organs that matter.
-    mirror_events : float
+    mirror_events : float or None
         With ``estimator="nee"``: next events through a flat perfect mirror (the
-        chamber's metal walls' specular part) per vertex, on average (default
-        0.2; 0: none, that light is then counted).  On the rose, leaves get ~6 %
-        of their light that way, and counting it held over half their variance:
-        0.05-1 events per vertex give the same σ, each 0.1 costing ~0.1 s per
-        step (``benchmarks/rose.py --images``).
+        chamber's metal walls' specular part) per vertex, on average (0: none, that
+        light is then counted).  Default None: 0.2 for a plant, 0.1 where cone rays
+        are on (a canopy: each event through a mirror then sends cone rays too, and
+        half as many events give the same σ for ~9 % less CPU on 16 roses).  On the
+        rose, leaves get ~6 % of their light that way, and counting it held over half
+        their variance: 0.05-1 events per vertex give the same σ, each 0.1 costing
+        ~0.1 s per step (``benchmarks/rose.py --images``).
     cone_rays : float or None
         With ``estimator="nee"``: rays per vertex into the cones of the clusters of organs the vertex is far
         from, the first organ met tallied (:mod:`lpy_light.kernel.cones`; fewer where the cones hold little of
@@ -169,7 +177,7 @@ class LightModel:
     def __init__(self, scene="angers-12bands", organs=None, photons: int = 300_000, seed: int = 1,
                  threads: int | None = None, plant_unit: str = "cm", position=None, parameter: str = "light",
                  estimator: str = "nee", lamp_flux=None, normalisation_photons: int = 1_000_000,
-                 progress=None, nee_picks: int = 2, targets=None, mirror_events: float = 0.2,
+                 progress=None, nee_picks: int = 2, targets=None, mirror_events: float | None = None,
                  precision: float | None = None, lamp_scale=1.0, colour_top: float | None = None,
                  one_sided_organs: bool = False, cone_rays: float | None = None):
         self.chamber = scene if hasattr(scene, "triangles") else load_scene(resolve_scene(str(scene)))
@@ -189,9 +197,9 @@ class LightModel:
         if int(nee_picks) < 0:
             raise InputError("nee_picks must be >= 0 (0 = every target at every vertex)")
         self.kscene.nee_picks = int(nee_picks)
-        if not 0 <= float(mirror_events) <= 64:
+        if mirror_events is not None and not 0 <= float(mirror_events) <= 64:
             raise InputError("mirror_events must be between 0 and 64 (next events through a mirror per vertex)")
-        self.mirror_events = float(mirror_events)
+        self.mirror_events = None if mirror_events is None else float(mirror_events)
         if cone_rays is not None and not 0 <= float(cone_rays) <= 64:
             raise InputError("cone_rays must be between 0 and 64 (rays into the organ clusters' cones per vertex)")
         self.kscene.nee_cones = None if cone_rays is None else float(cone_rays)
@@ -311,7 +319,7 @@ class LightModel:
         targets = None if self.targets is None else [o.module in self.targets for o in organs]
         self.kscene.nee_sensors = False       # steps report organs; sensors are counted, not targeted
         self.kscene.set_organs(organs, self.materials, targets)
-        self.kscene.nee_images = self.mirror_events
+        self.kscene.nee_images = self._mirror_events()
         self.kscene.retarget()                # (a no-op unless set_organs' targets are out of date)
         if not self._pruned and organs:       # once, with the first plant: which vertices see organs
             self.kscene.prune_next_events(threads=self.threads, keep=self.materials)   # organs' materials stay on
@@ -339,6 +347,15 @@ class LightModel:
             step.extra["compile_seconds"] = compiled
         self.step += 1
         return step
+
+    def _mirror_events(self) -> float:
+        """Next events through a mirror per vertex: ``mirror_events``, or by default :data:`MIRROR_EVENTS`, halved
+        where cone rays are on (they go through the mirrors too, :func:`lpy_light.kernel.images.image_cones`)."""
+        if self.mirror_events is not None:
+            return self.mirror_events
+        ks = self.kscene
+        cones = simulate.cones_for(len(ks.targets.kind)) if ks.nee_cones is None else float(ks.nee_cones)
+        return MIRROR_EVENTS / 2 if cones > 0 else MIRROR_EVENTS
 
     def _outside(self, organs) -> list:
         """Organs not inside the chamber's bounding box (warned once, in the plant's unit): a plant drawn in mm

@@ -162,3 +162,12 @@ def test_cone_rays_by_default_for_a_canopy_only():
     model = LightModel("angers", organs={"Leaf": THIN}, plant_unit="mm", photons=1000)
     assert model.kscene.nee_cones is None
     assert LightModel("angers", organs={"Leaf": THIN}, plant_unit="mm", photons=1000, cone_rays=2).kscene.nee_cones == 2.0
+
+
+def test_half_the_events_through_a_mirror_where_cone_rays_are_on():
+    """By default 0.2 events through a mirror per vertex for a plant, 0.1 where cone rays are on (each event then
+    sends cone rays too); an explicit ``mirror_events`` holds either way."""
+    def events(**kw):
+        return LightModel("angers", organs={"Leaf": THIN}, plant_unit="mm", photons=1000, **kw)._mirror_events()
+    assert events(cone_rays=0) == 0.2 and events(cone_rays=4) == 0.1
+    assert events(cone_rays=4, mirror_events=0.3) == 0.3 and events(cone_rays=0, mirror_events=0.0) == 0.0
