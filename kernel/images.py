@@ -217,10 +217,11 @@ def image_event(v, n_draw, stat0, geo, mat, sens, tgt, mir, organs, photon, stat
     For ``n_draw`` draws (a random whole number whose mean is ``mir.picks``, :func:`kernel.rng.n_draws`): a
     mirror plane P (one of ``mir.plane``, drawn with probability p_k in proportion to :func:`plane_importance`
     at v, computed once for the draws) and a target t, with probability p_t: uniform (1 / n_targets) among
-    sensors; among organs (``organs``, :class:`~kernel.records.OrganEvents`) by their importance seen from v's
-    image across P (:mod:`kernel.importance`, every target with its full weight: the cone rays of
-    :mod:`kernel.cones` do not go through mirrors), since drawn uniformly a leaf of a 16-rose canopy got one
-    event in 5,504 and those carried half its variance; a point x on t (a disc's by
+    sensors; among organs (``organs``, :class:`~kernel.records.OrganEvents`) split as the direct events split
+    them, but seen from v's image i across P: picked by importance from i (:mod:`kernel.importance`; the far
+    clusters' targets by their far weights), and where cone rays are on, the far clusters' large targets served
+    by cone rays from i instead (:func:`image_cones`) -- drawn uniformly, a leaf of a 16-rose canopy got one
+    event in 5,504, and those carried half its variance; a point x on t (a disc's by
     solid angle as seen from v's image, a quad's or a mesh's by area), its image x' across P; the ray v → x'
     must first meet a triangle of P (after the coplanar pick, as a photon would), from a side whose material
     is a perfect mirror, and the leg from there to x must be free (for a mesh: the first surface met is the

@@ -411,12 +411,12 @@ def next_event(v, stat, cover, control, geo, mat, sens, tgt, zones, organs, phot
         if j < n_near and cover_pid >= 0 and _zone_of(t, cover_pid, zones):
             continue          # served by the zone events of the vertex this photon came from
         kind = tgt.kind[t]
-        zoned = False     # does t have organ zone events (kernel.organ_zones; the small targets: buds)?
-        if organs is not None:
-            zoned = organs.zones.weight[t] > 0.0
-        if (zoned and j < n_near and kind >= T_MESH2 and organ_cover >= near_r2[t]
-                and geo.receiver[vtri] != tgt.ref[t]):
-            continue          # served by the organ zone events of the vertex this photon came from
+        if j < n_near and kind >= T_MESH2 and organ_cover >= near_r2[t] and geo.receiver[vtri] != tgt.ref[t]:
+            zoned = False     # does t have organ zone events (kernel.organ_zones: the small targets, buds)?
+            if organs is not None:
+                zoned = organs.zones.weight[t] > 0.0
+            if zoned:
+                continue      # served by the organ zone events of the vertex this photon came from
         reps = OWN_SAMPLES if j < n_near and kind >= T_MESH2 else 1    # a mesh's own events: their mean
         for r in range(reps):
             u1, u2, u3 = uniform(state), uniform(state), uniform(state)

@@ -521,12 +521,13 @@ class KernelScene:
             ev = self.organ_events
             far = ev.weight
             cones = cones_for(len(self.targets.kind)) if self.nee_cones is None else float(self.nee_cones)
+            large = cone_served(self.targets.area, ev.clusters)
             if cones > 0:        # large targets served by cone rays from vertices far from their cluster
-                far = np.where(cone_served(self.targets.area, ev.clusters), 0.0, ev.weight)
+                far = np.where(large, 0.0, ev.weight)
             # organ zone events for the small targets only (buds): a leaf's near light comes well enough from its
             # own events, and the zone events' own noise was the largest part of some leaves' variance (a 16-rose
             # canopy's p90 leaf: 49 % of σ² for 4 % of its light)
-            zw = np.where(cone_served(self.targets.area, ev.clusters), 0.0, ev.zones.weight)
+            zw = np.where(large, 0.0, ev.zones.weight)
             organs = ev._replace(weight=f64(ev.weight), far_weight=f64(far), cluster_weight=cluster_sums(far, ev.clusters),
                                  cones=cones, zones=ev.zones._replace(picks=float(self.nee_organ_zones), weight=f64(zw),
                                                                       cluster_weight=cluster_sums(zw, ev.clusters)))
