@@ -361,19 +361,19 @@ def next_event(v, stat, cover, control, geo, mat, sens, tgt, zones, organs, phot
     :func:`kernel.targets.near_discs`).  Its candidates are
     ``tgt.near_list[tgt.near_start[v.tri] : tgt.near_start[v.tri + 1]]``.  ``control``: the control variate
     is on (:mod:`kernel.control`): each pick of a sensor subtracts its γ.
-    ``cover`` = (cover_pid, organ_cover).  ``cover_pid`` ≥ 0: v is a vertex on plane ``cover_pid`` reached
+    ``cover`` = (cover_pid, n_chain).  ``cover_pid`` ≥ 0: v is a vertex on plane ``cover_pid`` reached
     straight from a next-event vertex, whose zone events (:func:`kernel.zones.zone_event`) already served the
-    near discs that have a zone on this plane: their own events are skipped here.  ``organ_cover`` ≥ 0: v is
-    on an organ reached straight from a next-event vertex, by a segment of that length²; that vertex's organ
-    zone events (:func:`kernel.organ_zones.organ_zone_event`) served the own events of the organ targets near
-    v (all but v's own organ) whose near radius² is at most that: skipped here.  ``organs``
+    near discs that have a zone on this plane: their own events are skipped here.  ``n_chain`` > 0: v is the last
+    of the organ vertices ``photon.chain[:n_chain]``, each reached straight from the one before, a next-event
+    vertex; the own events of the organ targets near v (all but v's own organ) that organ zone events served
+    (:func:`zone_served`) are skipped here.  ``organs``
     (:class:`~kernel.records.OrganEvents`, or None: sensors, drawn uniformly): picks drawn by importance
     (:mod:`kernel.importance`).
     A point on a mesh target is seen when the first surface met on the way is the target's, at x
     (:func:`kernel.rays.reaches`); a sensor's, when nothing is in the way (a shadow ray).
     """
     vx, vy, vz, nx, ny, nz, mode, m, vscale, vtri = v
-    cover_pid, organ_cover = cover
+    cover_pid, n_chain = cover
     w, out_k, out_w, state = photon.w, photon.out_k, photon.out_w, photon.state
     picks = tgt.picks
     near_start, near_r2 = tgt.near_start, tgt.near_r2
@@ -411,12 +411,11 @@ def next_event(v, stat, cover, control, geo, mat, sens, tgt, zones, organs, phot
         if j < n_near and cover_pid >= 0 and _zone_of(t, cover_pid, zones):
             continue          # served by the zone events of the vertex this photon came from
         kind = tgt.kind[t]
-        if j < n_near and kind >= T_MESH2 and organ_cover >= near_r2[t] and geo.receiver[vtri] != tgt.ref[t]:
-            zoned = False     # does t have organ zone events (kernel.organ_zones: the small targets, buds)?
-            if organs is not None:
-                zoned = organs.zones.weight[t] > 0.0
-            if zoned:
-                continue      # served by the organ zone events of the vertex this photon came from
+        if j < n_near and kind >= T_MESH2 and n_chain > 0 and organs is not None:
+            oz = organs.zones     # t has organ zone events (buds), and v is on its zone:
+            if oz.weight[t] > 0.0 and (geo.receiver[vtri] != tgt.ref[t] or oz.own[t] != 0):
+                if zone_served(t, n_chain, photon.chain, geo, tgt, organs):
+                    continue  # served by the organ zone events of a vertex this photon came from
         reps = OWN_SAMPLES if j < n_near and kind >= T_MESH2 else 1    # a mesh's own events: their mean
         for r in range(reps):
             u1, u2, u3 = uniform(state), uniform(state), uniform(state)
@@ -434,6 +433,36 @@ def next_event(v, stat, cover, control, geo, mat, sens, tgt, zones, organs, phot
             n_out = target_event(v, (t, d2c, tscale / reps), w, (u1, u2, u3), stat, geo, mat, sens, tgt, photon,
                                  stats, n_out)
     return n_out
+
+
+@helper
+def zone_served(t, n_chain, chain, geo, tgt, organs):
+    """Did the organ zone events of an earlier vertex serve the own event for organ target t (one with a zone) at
+    this vertex, the last of ``chain[:n_chain]`` (:class:`~kernel.records.Photon`: the organ vertices met one
+    straight after the other, each reached from a next-event vertex)?  Yes if it was reached by a leg at least
+    t's near radius long (:func:`kernel.organ_zones.organ_zone_event`), or by short legs on t's zone after such a
+    one, ``organs.zones.walk`` at most (:func:`kernel.organ_zones.zone_walk`)."""
+    near_r2 = tgt.near_r2[t]
+    cx, cy, cz = tgt.center[t, 0], tgt.center[t, 1], tgt.center[t, 2]
+    last = n_chain - 1
+    for i in range(last, max(last - organs.zones.walk, 0) - 1, -1):
+        tri = np.int64(chain[i, 3])
+        if i < last:          # an earlier vertex of the walk: within t's near radius too (on t itself or not)
+            ex, ey, ez = chain[i, 0] - cx, chain[i, 1] - cy, chain[i, 2] - cz
+            if not (ex * ex + ey * ey + ez * ez < near_r2 and near_listed(t, tri, tgt)):
+                return False
+        if chain[i, 4] >= near_r2:   # reached by a long leg: a zone event served it (on t's zone), and the walk
+            return geo.receiver[tri] != tgt.ref[t] or organs.zones.own[t] != 0    # the short legs after
+    return False
+
+
+@helper
+def near_listed(t, tri, tgt):
+    """Is target t in triangle ``tri``'s near list (a vertex there within its near radius makes its own event)?"""
+    for i in range(tgt.near_start[tri], tgt.near_start[tri + 1]):
+        if tgt.near_list[i] == t:
+            return True
+    return False
 
 
 @helper

@@ -20,23 +20,27 @@ from numba import njit
 
 from .importance import cluster_cdf, draw
 from .jit import helper
-from .nee import point_by_solid_angle, target_event, tri_point, view_factors
+from .nee import near_listed, point_by_solid_angle, target_event, tri_point, view_factors
 
 ZONE_BY_AREA = 0.2    # the share of zone points drawn uniformly by area (the rest by solid angle seen from the target)
-from .embree import GEOM_ID, INVALID_ID, PRIM_ID, RAYHIT, ARGS
-from .ptr import call_ptr3, load_u32
-from .rays import magnitude, set_ray
-from .records import T_MESH2, V_ISOTROPIC, V_LAMBERT, V_SURFACE, OrganZones, Vertex
+ZONE_WALK = 16        # short legs a zone event's vertex walks on inside the zone at most (zone_walk)
+from .embree import GEOM_ID, HIT_U, HIT_V, INVALID_ID, PRIM_ID, RAYHIT, ARGS
+from .ptr import call_ptr3, load_f32, load_u32
+from .rays import magnitude, pick_coplanar, set_ray
+from .records import DIFFUSE_R, DIFFUSE_T, T_MESH2, V_ISOTROPIC, V_LAMBERT, V_SURFACE, OrganZones, Vertex
 from .targets import cluster_sums
 from .rng import uniform
-from .sampling import search_cdf
+from .sampling import cosine_hemisphere, search_cdf
 from .tallies import C_SHADOW
 
 
-def organ_zones(tri_verts, tri_receiver, tri_pid, near_start, near_list, near_r2, kind, ref, center, clusters):
+def organ_zones(tri_verts, tri_receiver, tri_pid, near_start, near_list, near_r2, kind, ref, center, clusters,
+                own):
     """The zone of each organ target: the triangles of *other* organs within its near radius (where a vertex
-    makes an own next event for it, :func:`kernel.targets.near_discs`), with what :func:`organ_zone_event`
-    draws points by: their areas and the solid angles they subtend from the target's centre.
+    makes an own next event for it, :func:`kernel.targets.near_discs`), and its own where ``own`` (n,) bool (an
+    open organ, e.g. the tube that rose-simple4's ``F() Sphere()`` draws for a bud, lights its own inside), with
+    what :func:`organ_zone_event` draws points by: their areas and the solid angles they subtend from the
+    target's centre.
 
     ``tri_verts`` (T, 3, 3), ``tri_receiver`` (T,), ``tri_pid`` (T,) plane ids: the organs' triangles are those
     of a receiver without a plane (-1); ``near_*`` the targets' near lists and radii²; ``kind``, ``ref``,
@@ -46,7 +50,8 @@ def organ_zones(tri_verts, tri_receiver, tri_pid, near_start, near_list, near_r2
     tri_of = np.repeat(np.arange(T), np.diff(near_start))
     t_of = np.asarray(near_list[:near_start[-1]], np.int64)
     keep = ((tri_pid[tri_of] < 0) & (tri_receiver[tri_of] >= 0) & (np.asarray(kind)[t_of] >= T_MESH2)
-            & (np.asarray(near_r2)[t_of] > 0) & (tri_receiver[tri_of] != np.asarray(ref)[t_of]))
+            & (np.asarray(near_r2)[t_of] > 0)
+            & ((tri_receiver[tri_of] != np.asarray(ref)[t_of]) | np.asarray(own, bool)[t_of]))
     tri_of, t_of = tri_of[keep], t_of[keep]
     order = np.lexsort((tri_of, t_of))
     tri_of, t_of = tri_of[order], t_of[order]
@@ -68,7 +73,8 @@ def organ_zones(tri_verts, tri_receiver, tri_pid, near_start, near_list, near_r2
     weight = (zone_of >= 0).astype(np.float64)
     cluster_weight = cluster_sums(weight, clusters)
     return OrganZones(0.0, np.ascontiguousarray(targets, np.int64), start, np.ascontiguousarray(tri_of, np.int64),
-                      cdf_area, cdf_angle, total, zone_of, weight, np.ascontiguousarray(cluster_weight, np.float64))
+                      cdf_area, cdf_angle, total, zone_of, weight, np.ascontiguousarray(cluster_weight, np.float64),
+                      np.ascontiguousarray(own, np.uint8), 0)
 
 
 def solid_angles(v):
@@ -109,7 +115,7 @@ def zone_measures(tri_verts, tri_of, center, t_of):
 
 
 @helper
-def organ_zone_event(v, n_draw, stat, geo, mat, sens, tgt, organs, photon, stats):
+def organ_zone_event(v, n_draw, left, stat, geo, mat, sens, tgt, organs, photon, stats):
     """Two-step next events: the light that the segment leaving vertex ``v`` (:class:`~kernel.records.Vertex`)
     brings to an organ target t *through one diffuse vertex y on the organ surface beside it*
     (:func:`organ_zones`).
@@ -123,8 +129,10 @@ def organ_zone_event(v, n_draw, stat, geo, mat, sens, tgt, organs, photon, stats
         w2_b = w_b · f_v,b(ω_vy) · |cos θ_y| / |y − v|² / (p_A(y) · p_z · picks),
 
     f_v as in :func:`kernel.nee.next_event`: the expected own next event that a photon leaving v diffusely
-    would make at y, which a photon that does land there then skips.  Returns the new number of deposits
-    in ``photon.out_k`` / ``photon.out_w``.
+    would make at y, which a photon that does land there then skips.  From y on, a walk on the short legs
+    inside the zone makes the own events of the landings that follow (:func:`zone_walk`; ``left``: the k-th
+    surface met after v may make next events if k < left).  Returns the new number of deposits in
+    ``photon.out_k`` / ``photon.out_w``.
     """
     vx, vy, vz, nx, ny, nz, mode, m, vscale, _vtri = v
     oz = organs.zones
@@ -214,4 +222,86 @@ def organ_zone_event(v, n_draw, stat, geo, mat, sens, tgt, organs, photon, stats
         u4, u5, u6 = uniform(state), uniform(state), uniform(state)
         y = Vertex(yx, yy, yz, kx, ky, kz, V_SURFACE, np.int64(m_y), ymag + vmag, k)
         n_out = target_event(y, (t, d2c, 1.0), w2, (u4, u5, u6), stat, geo, mat, sens, tgt, photon, stats, n_out)
+        n_out = zone_walk(y, t, min(oz.walk, left - 2), stat, geo, mat, sens, tgt, oz, photon, stats, n_out)
+    return n_out
+
+
+@helper
+def zone_walk(y, t, n_legs, stat, geo, mat, sens, tgt, oz, photon, stats, n_out):
+    """The short legs after a zone event's vertex ``y`` (:class:`~kernel.records.Vertex` on organ t's zone, reached
+    by a photon of weights ``photon.w2``): where a photon leaving y diffusely lands on t's zone again, within t's
+    near radius of y, the own next event it would make there for t (:func:`kernel.nee.target_event`), and so on
+    from that landing, ``n_legs`` legs at most.  The far red a bud gets from the leaf tissue around it after
+    several bounces there: in a wedge between a leaf and the bud (R + T ≈ 1) a photon bounces many times, each
+    time making a large own event -- rare photons, each carrying much of the bud's far red.
+
+    Each leg: the side s (reflected, or transmitted) drawn with probability q_s ∝ Σ_b w_b P_s,b(m), a direction
+    cosine-distributed on it, and the first surface met within √``tgt.near_r2[t]``; it must be organ surface within
+    t's near radius (t in its triangle's near list) of a material with next events; on t itself, unless t's own
+    surface is in its zone (``oz.own``, :func:`organ_zones`), the walk goes on without an own event there.
+    The weights become w_b · P_s,b / q_s (``photon.w2``, in place).  A photon that does land there after such
+    legs skips those own events (:func:`kernel.nee.zone_served`): every path counted once.  Returns the new
+    number of deposits."""
+    yx, yy, yz, kx, ky, kz, _mode, m, yscale, _k = y
+    w2, state, scratch = photon.w2, photon.state, photon.scratch
+    n_bands = w2.shape[0]
+    near_r2 = tgt.near_r2[t]
+    rh = scratch + RAYHIT
+    for _ in range(n_legs):
+        sr = st = 0.0
+        for b in range(n_bands):
+            sr += w2[b] * mat.prob[m, DIFFUSE_R, b]
+            st += w2[b] * mat.prob[m, DIFFUSE_T, b]
+        if not sr + st > 0.0:
+            return n_out
+        u0, u1, u2 = uniform(state), uniform(state), uniform(state)
+        if u0 * (sr + st) < sr:       # reflected: back to the side y was reached from (the normal faces it)
+            ev, q, side = DIFFUSE_R, sr / (sr + st), 1.0
+        else:
+            ev, q, side = DIFFUSE_T, st / (sr + st), -1.0
+        dx, dy, dz = cosine_hemisphere(side * kx, side * ky, side * kz, u1, u2)
+        eps = geo.offset_rel * max(abs(yx), abs(yy), abs(yz), yscale)
+        set_ray(scratch, yx + side * eps * kx, yy + side * eps * ky, yz + side * eps * kz, dx, dy, dz,
+                math.sqrt(near_r2))
+        stats.counters[C_SHADOW] += 1
+        call_ptr3(geo.intersect, geo.scene, rh, scratch + ARGS)
+        gid = load_u32(rh + GEOM_ID)
+        if gid == INVALID_ID:
+            return n_out
+        k2 = load_u32(rh + PRIM_ID) + geo.geom_offset[gid]
+        bu, bv = load_f32(rh + HIT_U), load_f32(rh + HIT_V)
+        b0 = 1.0 - bu - bv
+        a = geo.verts[k2]
+        px = b0 * a[0, 0] + bu * a[1, 0] + bv * a[2, 0]
+        py = b0 * a[0, 1] + bu * a[1, 1] + bv * a[2, 1]
+        pz = b0 * a[0, 2] + bu * a[1, 2] + bv * a[2, 2]
+        if geo.cop_start[k2 + 1] > geo.cop_start[k2]:     # coincident surfaces: as a photon picks among them
+            k2 = pick_coplanar(k2, px, py, pz, dx, dy, dz, geo, state)
+        rec = geo.receiver[k2]
+        if rec < 0 or geo.plane_id[k2] >= 0:
+            return n_out                                 # not organ surface
+        own = rec == tgt.ref[t] and oz.own[t] == 0      # t itself, not in its zone: the walk goes on, no own event
+        lx, ly, lz = px - yx, py - yy, pz - yz
+        if not lx * lx + ly * ly + lz * lz < near_r2:
+            return n_out                                 # a long leg: the photon's own zone events serve it
+        ex, ey, ez = px - tgt.center[t, 0], py - tgt.center[t, 1], pz - tgt.center[t, 2]
+        d2c = ex * ex + ey * ey + ez * ez
+        if not (d2c < near_r2 and d2c >= tgt.near2[t] and near_listed(t, k2, tgt)):
+            return n_out                                 # no own event for t there
+        mx, my, mz = geo.normal[k2, 0], geo.normal[k2, 1], geo.normal[k2, 2]
+        if dx * mx + dy * my + dz * mz > 0.0:            # met from its back: the back's material, normal towards y
+            m2 = geo.material[k2, 1]
+            mx, my, mz = -mx, -my, -mz
+        else:
+            m2 = geo.material[k2, 0]
+        if tgt.from_material[m2] == 0:
+            return n_out
+        for b in range(n_bands):
+            w2[b] *= mat.prob[m, ev, b] / q
+        yscale = magnitude(a)
+        if not own:
+            u3, u4, u5 = uniform(state), uniform(state), uniform(state)
+            y2 = Vertex(px, py, pz, mx, my, mz, V_SURFACE, np.int64(m2), yscale, k2)
+            n_out = target_event(y2, (t, d2c, 1.0), w2, (u3, u4, u5), stat, geo, mat, sens, tgt, photon, stats, n_out)
+        yx, yy, yz, kx, ky, kz, m = px, py, pz, mx, my, mz, np.int64(m2)
     return n_out

@@ -145,6 +145,9 @@ OrganZones = namedtuple("OrganZones", [
     "zone_of",       # (n,) int64: each target's zone, or -1
     "weight",        # (n,) float64: 1 for the targets that have a zone, 0 for the others
     "cluster_weight",  # (K,) float64: the number of zones in each cluster of targets (Clusters)
+    "own",           # (n,) uint8: 1 where the target's own surface is in its zone (an open organ: it lights itself)
+    "walk",          # int: the short legs a zone event's vertex walks on inside the zone, at most, an own event at
+                     # each landing (kernel.organ_zones.zone_walk); 0: those landings are left to the photons
 ])
 
 Clusters = namedtuple("Clusters", [
@@ -215,6 +218,9 @@ Photon = namedtuple("Photon", [
     "exact",         # (K,) uint8: the clusters whose targets' importances were summed at this vertex
     "plane_cdf",     # (2P,) float64: cumulative importances of the mirror planes in use at a vertex, then (second
                      # half) at a target (kernel.images)
+    "chain",         # (D + 1, 5) float64: the organ vertices the photon met one after the other, each straight from
+                     # the one before, a next-event vertex: x, y, z, triangle, length² of the leg that reached it
+                     # (kernel.nee.zone_served; D the scene's max_depth)
 ])
 
 Accumulator = namedtuple("Accumulator", [

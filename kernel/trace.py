@@ -138,14 +138,17 @@ def work_arrays(scene, nee, scratch, tallies):
         n_planes = nee.mirrors.plane.shape[0]
         n_draw = 1 + int(max(nee.mirrors.picks, nee.mirrors.picks2, nee.zones.picks, organ_picks,
                              nee.organs.cones if nee.organs is not None else 0.0))
-        n_slots = 3 * (n_tgt + tgt.picks) + 2 * OWN_SAMPLES * n_near + 2 * n_draw   # own events and picks (up to
-        n_cv = nee.control.row.shape[0]          # 3 deposits each, a mesh's own events 2 each), or image / zone events
+        walk = int(nee.organs.zones.walk) if nee.organs is not None else 0
+        n_slots = 3 * (n_tgt + tgt.picks) + 2 * OWN_SAMPLES * n_near + 2 * (1 + walk) * n_draw   # own events and
+        n_cv = nee.control.row.shape[0]          # picks (up to 3 deposits each, a mesh's own events 2 each), or
+                                                 # image / zone events (2 each, and 2 per leg of an organ zone's walk)
     flush_start = scene.sensors.flush_start
     n_flush = int(np.max(np.diff(flush_start))) if flush_start.shape[0] > 1 else 0   # most sensors on a triangle
     photon = Photon(scratch, np.zeros(1, dtype=np.uint64), np.empty(n_bands), np.empty(n_bands), np.empty(n_bands),
                     np.empty(n_bands), np.empty(n_slots, dtype=np.int64), np.empty((n_slots, n_bands)),
                     np.empty(CAND_CAP + n_flush, dtype=np.int64), np.empty(max(1, n_cdf + (2 + CONE_DATA) * n_clusters)),
-                    np.zeros(max(1, n_clusters), dtype=np.uint8), np.empty(max(1, 2 * n_planes)))
+                    np.zeros(max(1, n_clusters), dtype=np.uint8), np.empty(max(1, 2 * n_planes)),
+                    np.empty((mat.max_depth + 2, 5)))
     accum = Accumulator(np.zeros((n_rows, n_bands)), np.zeros(n_rows, dtype=np.uint8), np.empty(n_rows, dtype=np.int64),
                         np.empty(n_bands))
     cvw = ControlWork(np.zeros((n_bands, n_cv)), np.zeros((n_bands, n_cv)), np.zeros((n_bands, n_bands, n_cv)),
@@ -229,6 +232,9 @@ def trace_photons(scene, nee, organs, seed, first, count, tallies, stats, photon
         cover = np.int64(-1)         # the plane whose near discs zone events served (next_event's cover_pid)
         organ_cover = -1.0           # the length² of the segment to an organ vertex whose own events organ zone
                                      # events served (those of targets whose near radius is at most that long)
+        n_chain = np.int64(0)        # organ vertices in photon.chain: the last ones met, each straight after a
+                                     # next-event vertex (next_event's zone_served)
+        left = max_depth + 1         # the k-th surface met from here on may make next events if k < left
         near = np.int64(0)           # its triangle has near discs (control_deposits)
         room = max_depth > 0         # a further bounce is allowed (events through a mirror or a zone need one)
         room2 = max_depth > 1        # two more (events through two mirrors)
@@ -239,7 +245,7 @@ def trace_photons(scene, nee, organs, seed, first, count, tallies, stats, photon
             if nee is not None and events:   # expected light of the segment leaving the vertex, if diffusely
                 if control:
                     control_deposits(vertex, w, near, mat, cv, cvw)
-                n_out = next_event(vertex, stat, (cover, organ_cover), control, geo, mat, sens, tgt, zones, organs,
+                n_out = next_event(vertex, stat, (cover, n_chain), control, geo, mat, sens, tgt, zones, organs,
                                    photon, stats)
                 nh = record_all(n_out, nh, photon, accum)
                 # and through a mirror (if not cut at that mirror); the call itself is not free: only if drawn
@@ -261,7 +267,7 @@ def trace_photons(scene, nee, organs, seed, first, count, tallies, stats, photon
                         nh = record_all(n_out, nh, photon, accum)
                     n_oz = n_draws(organs.zones.picks, state) if organ_on and room else 0
                     if n_oz > 0:   # and through one diffuse vertex on the organ surface beside an organ
-                        n_out = organ_zone_event(vertex, n_oz, stat, geo, mat, sens, tgt, organs, photon, stats)
+                        n_out = organ_zone_event(vertex, n_oz, left, stat, geo, mat, sens, tgt, organs, photon, stats)
                         nh = record_all(n_out, nh, photon, accum)
             if on_surface:
                 # one event, drawn with probabilities q shared by the bands; weights carry the rest
@@ -436,11 +442,19 @@ def trace_photons(scene, nee, organs, seed, first, count, tallies, stats, photon
                 if organs is not None:
                     if organ_on and after_diffuse and geo.plane_id[tri] < 0 and rec >= 0:
                         organ_cover = (px - vx0) ** 2 + (py - vy0) ** 2 + (pz - vz0) ** 2
+                if organ_cover >= 0.0:       # one more organ vertex straight after a next-event vertex
+                    chain = photon.chain
+                    chain[n_chain, 0], chain[n_chain, 1], chain[n_chain, 2] = px, py, pz
+                    chain[n_chain, 3], chain[n_chain, 4] = tri, organ_cover
+                    n_chain += 1
+                else:
+                    n_chain = np.int64(0)
                 vertex = Vertex(px, py, pz, nx, ny, nz, V_SURFACE, m, pscale + oscale, tri)
                 stat = m
                 near = 1 if tgt.near_start[tri + 1] > tgt.near_start[tri] else 0
                 room = depth + 1 < max_depth
                 room2 = depth + 2 < max_depth
+                left = max_depth - depth
             on_surface = True
         if pb < n_pass - 1:
             continue         # the photon's other bands' paths still to come: one flush for all

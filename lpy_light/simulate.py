@@ -23,7 +23,7 @@ from .kernel.control import build_control
 from .kernel.records import (Emitters, Geometry, Materials, Mirrors, NextEvents, OrganEvents, Scene, Sensors, Zones,
                              f64, i32, i64, new_tallies, u8)
 from .kernel.nee import NEAR
-from .kernel.organ_zones import organ_zones
+from .kernel.organ_zones import ZONE_WALK, organ_zones
 from .kernel.tallies import C_BATCHES, N_COUNTERS
 from .kernel.targets import build_targets, cluster_sums, cone_served, target_clusters
 from .kernel.trace import trace_chunk
@@ -227,6 +227,8 @@ class KernelScene:
         self.nee_zones = 0.3        # two-step next events through the surface beside a disc, per vertex (0: none)
         self.nee_importance = True  # next events to organs: picks by importance (kernel.importance), organ zones
         self.nee_organ_zones = 0.25  # two-step next events through the organ surface beside a bud, per vertex
+        self.nee_zone_walk = ZONE_WALK  # ... each walking on that many short legs inside the bud's zone at most
+        self.nee_open_zones = True  # an open bud's own surface in its zone (set before set_organs)
         self.compile_seconds = 0.0  # seconds spent compiling the kernel for this scene (:func:`compile_kernel`)
         self.nee_cones = None       # rays into the cones of the organ clusters a vertex is far from, per vertex at most
                                     # (kernel.cones; 0: picks among all clusters instead; None: cones_for(targets))
@@ -385,7 +387,8 @@ class KernelScene:
             clusters = target_clusters(tgt.center, np.sqrt(tgt.img_near2) / NEAR)
             weight = np.ones(n_tgt)
             zones = organ_zones(self.tri_verts, self.tri_receiver, self.tri_pid, tgt.near_start, tgt.near_list,
-                                tgt.near_r2, tgt.kind, tgt.ref, tgt.center, clusters)
+                                tgt.near_r2, tgt.kind, tgt.ref, tgt.center, clusters,
+                                (tgt.facing == 0) & bool(self.nee_open_zones))
             cluster_of = np.zeros(n_tgt, np.int64)
             cluster_of[clusters.member] = np.repeat(np.arange(len(clusters.radius)), np.diff(clusters.start))
             self.organ_events = OrganEvents(clusters, weight, weight, cluster_sums(weight, clusters), cluster_of,
@@ -530,6 +533,7 @@ class KernelScene:
             zw = np.where(large, 0.0, ev.zones.weight)
             organs = ev._replace(weight=f64(ev.weight), far_weight=f64(far), cluster_weight=cluster_sums(far, ev.clusters),
                                  cones=cones, zones=ev.zones._replace(picks=float(self.nee_organ_zones), weight=f64(zw),
+                                                                      walk=int(self.nee_zone_walk),
                                                                       cluster_weight=cluster_sums(zw, ev.clusters)))
         return scene, NextEvents(targets, mirrors, zones, control, organs)
 

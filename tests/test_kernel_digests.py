@@ -161,8 +161,8 @@ PINNED = {
     "room-line-weighted": "c7d42d71b5c767043f1e8ec90838e2f94856d9283c8c561cd7be56c0fa3a5a6b",
     "room-lambertian-nee": "cd73a7907c81ec744f1ee14fc1452ecc8d67bdc82f40691cef18f6ed6fb01fb1",
     "room-lambertian-analog": "22c08b31f224eb5c161b766a925e443d33ca195c3ccb7f1120776b4a908fcb42",
-    "rose-nee": "bdcad10b19ba0cf94e6544e52ee21f3fcd85215687cf266b85b64c057e68183a",
-    "rose-cones": "7d52fb7cc46464a59394ea956ea6067d6733e8956908f23fbab57056ec94be2f",
+    "rose-nee": "2e9cbf5b984647a3316539048bd614436220b8b7af68849b983632b07ab95d05",
+    "rose-cones": "a8f8f6220597e6b623eaaa264fde8c17bdfab8c6f9bc31d41d1125c950a8b673",
 }
 
 

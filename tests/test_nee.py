@@ -133,13 +133,14 @@ def test_shadow_rays_reach_thin_sliver_triangles(tmp_path):
     tgt = nee.targets._replace(picks=1)
     state = np.zeros(1, np.uint64)
     photon = Photon(scratch.ctypes.data, state, np.ones(1), np.empty(1), np.empty(1), np.empty(1), np.empty(8, np.int64),
-                    np.empty((8, 1)), np.empty(0, np.int64), np.empty(1), np.zeros(1, np.uint8), np.empty(1))
+                    np.empty((8, 1)), np.empty(0, np.int64), np.empty(1), np.zeros(1, np.uint8), np.empty(1),
+                    np.empty((2, 5)))
     stats = np.zeros((len(ks.materials) + 1, 3))
     grey = ks.material_index(mats["grey"])
     vertex = Vertex(900.0, 500.0, 0.0, 0.0, 0.0, 1.0, V_SURFACE, grey, 1000.0, -1)
     for i in range(200):
         seed_stream(state, 5, i)
-        next_event(vertex, 0, (-1, -1.0), False, scene.geometry, scene.materials, scene.sensors, tgt, nee.zones,
+        next_event(vertex, 0, (-1, np.int64(0)), False, scene.geometry, scene.materials, scene.sensors, tgt, nee.zones,
                        None, photon, Stats(np.zeros(6, np.int64), stats))
     assert stats[0, 0] == 200 and stats[0, 1] == 200, "shadow rays cast, unblocked: %s" % stats[0, :2]
 
