@@ -22,15 +22,17 @@ from .importance import cluster_cdf, draw
 from .jit import helper
 from .nee import near_listed, point_by_solid_angle, target_event, tri_point, view_factors
 
-ZONE_BY_AREA = 0.2    # the share of zone points drawn uniformly by area (the rest by solid angle seen from the target)
-ZONE_WALK = 16        # short legs a zone event's vertex walks on inside the zone at most (zone_walk)
+ZONE_BY_CONE = 0.5    # the share of zone points found by a ray from the vertex into the target's near sphere
+ZONE_BY_AREA = 0.1    # ... drawn uniformly by area on the zone (the rest by solid angle seen from the target)
+ZONE_WALK = 50        # short legs a zone event's vertex walks on inside the zone at most (zone_walk): a photon in
+                      # an open bud's tube bounces 20 times and more there (rose-simple4, far red)
 from .embree import GEOM_ID, HIT_U, HIT_V, INVALID_ID, PRIM_ID, RAYHIT, ARGS
 from .ptr import call_ptr3, load_f32, load_u32
 from .rays import magnitude, pick_coplanar, set_ray
 from .records import DIFFUSE_R, DIFFUSE_T, T_MESH2, V_ISOTROPIC, V_LAMBERT, V_SURFACE, OrganZones, Vertex
 from .targets import cluster_sums
 from .rng import uniform
-from .sampling import cosine_hemisphere, search_cdf
+from .sampling import cosine_hemisphere, frame, search_cdf
 from .tallies import C_SHADOW
 
 
@@ -121,15 +123,20 @@ def organ_zone_event(v, n_draw, left, stat, geo, mat, sens, tgt, organs, photon,
     (:func:`organ_zones`).
 
     For ``n_draw`` draws (mean ``oz.picks``): a zone z of target t, drawn with probability p_z ∝ 1 / max(d², R²)
-    (:mod:`kernel.importance`); its triangle k
-    with probability P_k (``oz.cdf``) and y uniform on it: p_A(y) = P_k / A_k; the ray v → y must first meet
-    triangle k, y within t's near radius, whose side facing v is a material with next events; then from y
-    one own next event to t (:func:`kernel.nee.target_event`) for a photon of weights
+    (:mod:`kernel.importance`), then y on it in one of two ways: with probability :data:`ZONE_BY_CONE`, the first
+    surface met by a ray from v in a direction uniform in the cone of t's near sphere (solid angle Ω_c); else
+    its triangle k with probability P_k (``oz.cdf``) and y uniform on it, p_A(y) = P_k / A_k, and the ray v → y
+    must first meet triangle k.  y must be on t's zone (within its near radius), at least that far from v, and
+    the side facing v a material with next events; then from y one own next event to t
+    (:func:`kernel.nee.target_event`) for a photon of weights
 
-        w2_b = w_b · f_v,b(ω_vy) · |cos θ_y| / |y − v|² / (p_A(y) · p_z · picks),
+        w2_b = w_b · f_v,b(ω_vy) / (p(ω_vy) · p_z · picks),   p(ω) = α / Ω_c + (1 − α) · p_A(y) · |y − v|² / |cos θ_y|,
 
-    f_v as in :func:`kernel.nee.next_event`: the expected own next event that a photon leaving v diffusely
-    would make at y, which a photon that does land there then skips.  From y on, a walk on the short legs
+    the density of both ways together in the solid angle seen from v (α = :data:`ZONE_BY_CONE`; f_v as in
+    :func:`kernel.nee.next_event`): the expected own next event that a photon leaving v diffusely would make at
+    y, which a photon that does land there then skips.  The cone finds what v sees of the zone (an open bud's
+    inside, through its opening), which points drawn on the zone's surface rarely do (each then a large
+    deposit); those points serve the zone surface a cone ray rarely meets.  From y on, a walk on the short legs
     inside the zone makes the own events of the landings that follow (:func:`zone_walk`; ``left``: the k-th
     surface met after v may make next events if k < left).  Returns the new number of deposits in
     ``photon.out_k`` / ``photon.out_w``.
@@ -157,33 +164,61 @@ def organ_zone_event(v, n_draw, left, stat, geo, mat, sens, tgt, organs, photon,
         if t < 0:
             continue
         z = oz.zone_of[t]
+        near_r2 = tgt.near_r2[t]
         u0, u1, u2, u3 = uniform(state), uniform(state), uniform(state), uniform(state)
         cx, cy, cz = tgt.center[t, 0], tgt.center[t, 1], tgt.center[t, 2]
-        by_angle = u0 >= ZONE_BY_AREA and oz.total[z, 1] > 0.0
-        i = search_cdf(oz.cdf_angle if by_angle else oz.cdf_area, oz.start[z], oz.start[z + 1] - 1, u3)
-        k = oz.tri[i]
-        a = geo.verts[k]
-        kx, ky, kz = geo.normal[k, 0], geo.normal[k, 1], geo.normal[k, 2]
-        if by_angle:          # in a direction from the target's centre uniform in the triangle's solid angle
-            yx, yy, yz, om = point_by_solid_angle(cx, cy, cz, a, kx, ky, kz, u1, u2)
-            if om == 0.0:
+        ax, ay, az = cx - vx, cy - vy, cz - vz            # the cone of t's near sphere seen from v
+        dc2 = ax * ax + ay * ay + az * az
+        dc = math.sqrt(dc2)
+        omc = 1.0 - math.sqrt(1.0 - near_r2 / dc2) if dc2 > near_r2 else 2.0    # 1 − cos of its half angle
+        if u0 < ZONE_BY_CONE:     # the first surface met in a direction from v uniform in the cone
+            dx, dy, dz = in_cone(ax / dc, ay / dc, az / dc, omc, u1, u2)
+            cos_v = dx * nx + dy * ny + dz * nz
+            side = 0.0 if mode == V_ISOTROPIC else (1.0 if cos_v > 0.0 else -1.0)
+            eps = geo.offset_rel * vmag
+            set_ray(scratch, vx + side * eps * nx, vy + side * eps * ny, vz + side * eps * nz, dx, dy, dz,
+                    dc + math.sqrt(near_r2) + 4.0 * eps)
+            stats.counters[C_SHADOW] += 1
+            call_ptr3(geo.intersect, geo.scene, rh, scratch + ARGS)
+            gid = load_u32(rh + GEOM_ID)
+            if gid == INVALID_ID:
                 continue
-        else:                 # uniform on the triangle
-            yx, yy, yz = tri_point(a, u1, u2)
+            k = load_u32(rh + PRIM_ID) + geo.geom_offset[gid]
+            bu, bv = load_f32(rh + HIT_U), load_f32(rh + HIT_V)
+            a = geo.verts[k]
+            b0 = 1.0 - bu - bv
+            yx = b0 * a[0, 0] + bu * a[1, 0] + bv * a[2, 0]
+            yy = b0 * a[0, 1] + bu * a[1, 1] + bv * a[2, 1]
+            yz = b0 * a[0, 2] + bu * a[1, 2] + bv * a[2, 2]
+            if geo.cop_start[k + 1] > geo.cop_start[k]:   # coincident surfaces: as a photon picks among them
+                k = pick_coplanar(k, yx, yy, yz, dx, dy, dz, geo, state)
+                a = geo.verts[k]
+            rec = geo.receiver[k]
+            if (rec < 0 or geo.plane_id[k] >= 0 or (rec == tgt.ref[t] and oz.own[t] == 0)
+                    or not near_listed(t, k, tgt)):
+                continue                                   # not a triangle of t's zone
+        else:                     # a point drawn on the zone's surface
+            by_angle = u3 >= ZONE_BY_AREA / (1.0 - ZONE_BY_CONE) and oz.total[z, 1] > 0.0
+            u4 = uniform(state)
+            i = search_cdf(oz.cdf_angle if by_angle else oz.cdf_area, oz.start[z], oz.start[z + 1] - 1, u4)
+            k = oz.tri[i]
+            a = geo.verts[k]
+            if by_angle:          # in a direction from the target's centre uniform in the triangle's solid angle
+                yx, yy, yz, om = point_by_solid_angle(cx, cy, cz, a, geo.normal[k, 0], geo.normal[k, 1],
+                                                      geo.normal[k, 2], u1, u2)
+                if om == 0.0:
+                    continue
+            else:                 # uniform on the triangle
+                yx, yy, yz = tri_point(a, u1, u2)
+        kx, ky, kz = geo.normal[k, 0], geo.normal[k, 1], geo.normal[k, 2]
         ex, ey, ez = yx - cx, yy - cy, yz - cz
         d2c = ex * ex + ey * ey + ez * ez
-        if not (d2c < tgt.near_r2[t] and d2c > 0.0):
+        if not (d2c < near_r2 and d2c > 0.0):
             continue                                   # outside the zone (a photon there makes a pick instead)
-        # the density of y on the zone's surface: the mixture of both ways of drawing it
-        cos_c = abs(ex * kx + ey * ky + ez * kz) / math.sqrt(d2c)
-        p_a = ZONE_BY_AREA / oz.total[z, 0] + (1.0 - ZONE_BY_AREA) * (
-            cos_c / (d2c * oz.total[z, 1]) if oz.total[z, 1] > 0.0 else 0.0)
         dx, dy, dz = yx - vx, yy - vy, yz - vz
         dist2 = dx * dx + dy * dy + dz * dz
-        if not (dist2 > 0.0 and p_a > 0.0):
-            continue
-        if dist2 < tgt.near_r2[t]:
-            continue                                   # a short leg (1/d², heavy-tailed): left to the own events
+        if not dist2 >= near_r2:
+            continue                                   # a short leg: left to the own events and walks
         dist = math.sqrt(dist2)
         dx, dy, dz = dx / dist, dy / dist, dz / dist
         cos_v = dx * nx + dy * ny + dz * nz
@@ -196,20 +231,28 @@ def organ_zone_event(v, n_draw, left, stat, geo, mat, sens, tgt, organs, photon,
         else:
             m_y = geo.material[k, 0]
             cos_in = -cos_in
-        if tgt.from_material[m_y] == 0:
+        if tgt.from_material[m_y] == 0 or not cos_in > 0.0:
             continue                                   # no next events from y's material: its crossings count
-        side = 0.0 if mode == V_ISOTROPIC else (1.0 if cos_v > 0.0 else -1.0)
         ymag = magnitude(a)
-        eps = geo.offset_rel * (vmag + ymag)
-        # the first leg: what a photon leaving v towards y meets first (past y by a little: Embree's float32)
-        set_ray(scratch, vx + side * eps * nx, vy + side * eps * ny, vz + side * eps * nz, dx, dy, dz,
-                dist * (1.0 + 2.0 ** -10) + 4.0 * eps)
-        stats.counters[C_SHADOW] += 1
-        call_ptr3(geo.intersect, geo.scene, rh, scratch + ARGS)
-        gid = load_u32(rh + GEOM_ID)
-        if gid == INVALID_ID or load_u32(rh + PRIM_ID) + geo.geom_offset[gid] != k:
-            continue                                   # something else first: no such vertex y
-        arrive = cos_in / dist2 / (p_a * p_z * oz.picks)   # vertex density at y / p_A(y) / (p_z · picks)
+        if not u0 < ZONE_BY_CONE:
+            side = 0.0 if mode == V_ISOTROPIC else (1.0 if cos_v > 0.0 else -1.0)
+            eps = geo.offset_rel * (vmag + ymag)
+            # the first leg: what a photon leaving v towards y meets first (past y by a little: Embree's float32)
+            set_ray(scratch, vx + side * eps * nx, vy + side * eps * ny, vz + side * eps * nz, dx, dy, dz,
+                    dist * (1.0 + 2.0 ** -10) + 4.0 * eps)
+            stats.counters[C_SHADOW] += 1
+            call_ptr3(geo.intersect, geo.scene, rh, scratch + ARGS)
+            gid = load_u32(rh + GEOM_ID)
+            if gid == INVALID_ID or load_u32(rh + PRIM_ID) + geo.geom_offset[gid] != k:
+                continue                               # something else first: no such vertex y
+        # the density of y, in the solid angle seen from v, of both ways of drawing it
+        cos_c = abs(ex * geo.normal[k, 0] + ey * geo.normal[k, 1] + ez * geo.normal[k, 2]) / math.sqrt(d2c)
+        if oz.total[z, 1] > 0.0:      # by area or by solid angle from the centre (per unit area of the zone)
+            p_a = ZONE_BY_AREA / oz.total[z, 0] + (1.0 - ZONE_BY_AREA - ZONE_BY_CONE) * cos_c / (d2c * oz.total[z, 1])
+        else:
+            p_a = (1.0 - ZONE_BY_CONE) / oz.total[z, 0]
+        p_w = ZONE_BY_CONE / (2.0 * math.pi * omc) + p_a * dist2 / cos_in
+        arrive = 1.0 / (p_w * p_z * oz.picks)
         any_light = False
         for b in range(n_bands):
             fv = c0 + c1 * abs(cos_v)
@@ -219,11 +262,24 @@ def organ_zone_event(v, n_draw, left, stat, geo, mat, sens, tgt, organs, photon,
             any_light = any_light or w2[b] > 0.0
         if not any_light:
             continue
-        u4, u5, u6 = uniform(state), uniform(state), uniform(state)
+        u5, u6, u7 = uniform(state), uniform(state), uniform(state)
         y = Vertex(yx, yy, yz, kx, ky, kz, V_SURFACE, np.int64(m_y), ymag + vmag, k)
-        n_out = target_event(y, (t, d2c, 1.0), w2, (u4, u5, u6), stat, geo, mat, sens, tgt, photon, stats, n_out)
+        n_out = target_event(y, (t, d2c, 1.0), w2, (u5, u6, u7), stat, geo, mat, sens, tgt, photon, stats, n_out)
         n_out = zone_walk(y, t, min(oz.walk, left - 2), stat, geo, mat, sens, tgt, oz, photon, stats, n_out)
     return n_out
+
+
+@helper
+def in_cone(ax, ay, az, omc, u1, u2):
+    """A direction uniform in the cone about unit axis a whose half angle θ has 1 − cos θ = ``omc`` (2: every
+    direction), from two uniforms; its density is 1 / (2π · omc)."""
+    g = u1 * omc
+    ct = 1.0 - g
+    st = math.sqrt(max(g * (2.0 - g), 0.0))
+    tb, bb = frame(ax, ay, az)
+    cp, sp = math.cos(2.0 * math.pi * u2), math.sin(2.0 * math.pi * u2)
+    return (ct * ax + st * (cp * tb[0] + sp * bb[0]), ct * ay + st * (cp * tb[1] + sp * bb[1]),
+            ct * az + st * (cp * tb[2] + sp * bb[2]))
 
 
 @helper

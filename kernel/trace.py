@@ -138,7 +138,7 @@ def work_arrays(scene, nee, scratch, tallies):
         n_planes = nee.mirrors.plane.shape[0]
         n_draw = 1 + int(max(nee.mirrors.picks, nee.mirrors.picks2, nee.zones.picks, organ_picks,
                              nee.organs.cones if nee.organs is not None else 0.0))
-        walk = int(nee.organs.zones.walk) if nee.organs is not None else 0
+        walk = min(int(nee.organs.zones.walk), int(mat.max_depth)) if nee.organs is not None else 0
         n_slots = 3 * (n_tgt + tgt.picks) + 2 * OWN_SAMPLES * n_near + 2 * (1 + walk) * n_draw   # own events and
         n_cv = nee.control.row.shape[0]          # picks (up to 3 deposits each, a mesh's own events 2 each), or
                                                  # image / zone events (2 each, and 2 per leg of an organ zone's walk)

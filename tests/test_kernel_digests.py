@@ -161,8 +161,8 @@ PINNED = {
     "room-line-weighted": "c7d42d71b5c767043f1e8ec90838e2f94856d9283c8c561cd7be56c0fa3a5a6b",
     "room-lambertian-nee": "cd73a7907c81ec744f1ee14fc1452ecc8d67bdc82f40691cef18f6ed6fb01fb1",
     "room-lambertian-analog": "22c08b31f224eb5c161b766a925e443d33ca195c3ccb7f1120776b4a908fcb42",
-    "rose-nee": "2e9cbf5b984647a3316539048bd614436220b8b7af68849b983632b07ab95d05",
-    "rose-cones": "a8f8f6220597e6b623eaaa264fde8c17bdfab8c6f9bc31d41d1125c950a8b673",
+    "rose-nee": "e91bdc66beb12d67d49f81c758f110aa6bc664966f67e4dead4b61b4a463731e",
+    "rose-cones": "760208c8bbac8053254a0949a3f82d0b1271d8aad1a3c4c6220d6b961418f355",
 }
 
 
