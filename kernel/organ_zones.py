@@ -20,10 +20,12 @@ from numba import njit
 
 from .importance import cluster_cdf, draw
 from .jit import helper
-from .nee import near_listed, point_by_solid_angle, target_event, tri_point, view_factors
+from .nee import NEAR, near_listed, point_by_solid_angle, target_event, tri_point, view_factors
 
-ZONE_BY_CONE = 0.5    # the share of zone points found by a ray from the vertex into the target's near sphere
-ZONE_BY_AREA = 0.1    # ... drawn uniformly by area on the zone (the rest by solid angle seen from the target)
+ZONE_BY_CONE = 0.5    # the share of zone points found by a ray from the vertex into the target's near sphere,
+ZONE_BY_BUD = 0.25    # ... for an open target (own surface in its zone), into its own bounding sphere (its inside)
+ZONE_BY_AREA = 0.2    # the rest drawn on the zone's surface: this share uniformly by area, the others by solid
+                      # angle seen from the target's centre
 ZONE_WALK = 50        # short legs a zone event's vertex walks on inside the zone at most (zone_walk): a photon in
                       # an open bud's tube bounces 20 times and more there (rose-simple4, far red)
 from .embree import GEOM_ID, HIT_U, HIT_V, INVALID_ID, PRIM_ID, RAYHIT, ARGS
@@ -123,16 +125,18 @@ def organ_zone_event(v, n_draw, left, stat, geo, mat, sens, tgt, organs, photon,
     (:func:`organ_zones`).
 
     For ``n_draw`` draws (mean ``oz.picks``): a zone z of target t, drawn with probability p_z ∝ 1 / max(d², R²)
-    (:mod:`kernel.importance`), then y on it in one of two ways: with probability :data:`ZONE_BY_CONE`, the first
-    surface met by a ray from v in a direction uniform in the cone of t's near sphere (solid angle Ω_c); else
-    its triangle k with probability P_k (``oz.cdf``) and y uniform on it, p_A(y) = P_k / A_k, and the ray v → y
-    must first meet triangle k.  y must be on t's zone (within its near radius), at least that far from v, and
+    (:mod:`kernel.importance`), then y on it in one of three ways: with probability α = :data:`ZONE_BY_CONE`,
+    the first surface met by a ray from v in a direction uniform in the cone of t's near sphere (solid angle
+    Ω_c); for an open t (``oz.own``), with probability β = :data:`ZONE_BY_BUD`, the same in the cone of t's own
+    bounding sphere (Ω_b: its inside, through its openings); else its triangle k with probability P_k
+    (``oz.cdf``) and y uniform on it, p_A(y) = P_k / A_k (with the probability 1 − α − β of this way), and the
+    ray v → y must first meet triangle k.  y must be on t's zone (within its near radius), at least that far from v, and
     the side facing v a material with next events; then from y one own next event to t
     (:func:`kernel.nee.target_event`) for a photon of weights
 
-        w2_b = w_b · f_v,b(ω_vy) / (p(ω_vy) · p_z · picks),   p(ω) = α / Ω_c + (1 − α) · p_A(y) · |y − v|² / |cos θ_y|,
+        w2_b = w_b · f_v,b(ω_vy) / (p(ω_vy) · p_z · picks),   p(ω) = α / Ω_c + β / Ω_b [ω in t's cone] + p_A(y) · |y − v|² / |cos θ_y|,
 
-    the density of both ways together in the solid angle seen from v (α = :data:`ZONE_BY_CONE`; f_v as in
+    the density of the three ways together in the solid angle seen from v (f_v as in
     :func:`kernel.nee.next_event`): the expected own next event that a photon leaving v diffusely would make at
     y, which a photon that does land there then skips.  The cone finds what v sees of the zone (an open bud's
     inside, through its opening), which points drawn on the zone's surface rarely do (each then a large
@@ -171,8 +175,12 @@ def organ_zone_event(v, n_draw, left, stat, geo, mat, sens, tgt, organs, photon,
         dc2 = ax * ax + ay * ay + az * az
         dc = math.sqrt(dc2)
         omc = 1.0 - math.sqrt(1.0 - near_r2 / dc2) if dc2 > near_r2 else 2.0    # 1 − cos of its half angle
-        if u0 < ZONE_BY_CONE:     # the first surface met in a direction from v uniform in the cone
-            dx, dy, dz = in_cone(ax / dc, ay / dc, az / dc, omc, u1, u2)
+        by_bud = ZONE_BY_BUD if oz.own[t] != 0 else 0.0
+        rb2 = tgt.img_near2[t] / (NEAR * NEAR)           # t's bounding sphere (radius², about its centre)
+        omc_b = 1.0 - math.sqrt(1.0 - rb2 / dc2) if dc2 > rb2 else 2.0
+        by_ray = u0 < by_bud + ZONE_BY_CONE
+        if by_ray:                # the first surface met in a direction from v uniform in a cone
+            dx, dy, dz = in_cone(ax / dc, ay / dc, az / dc, omc_b if u0 < by_bud else omc, u1, u2)
             cos_v = dx * nx + dy * ny + dz * nz
             side = 0.0 if mode == V_ISOTROPIC else (1.0 if cos_v > 0.0 else -1.0)
             eps = geo.offset_rel * vmag
@@ -198,7 +206,7 @@ def organ_zone_event(v, n_draw, left, stat, geo, mat, sens, tgt, organs, photon,
                     or not near_listed(t, k, tgt)):
                 continue                                   # not a triangle of t's zone
         else:                     # a point drawn on the zone's surface
-            by_angle = u3 >= ZONE_BY_AREA / (1.0 - ZONE_BY_CONE) and oz.total[z, 1] > 0.0
+            by_angle = u3 >= ZONE_BY_AREA and oz.total[z, 1] > 0.0
             u4 = uniform(state)
             i = search_cdf(oz.cdf_angle if by_angle else oz.cdf_area, oz.start[z], oz.start[z + 1] - 1, u4)
             k = oz.tri[i]
@@ -234,7 +242,7 @@ def organ_zone_event(v, n_draw, left, stat, geo, mat, sens, tgt, organs, photon,
         if tgt.from_material[m_y] == 0 or not cos_in > 0.0:
             continue                                   # no next events from y's material: its crossings count
         ymag = magnitude(a)
-        if not u0 < ZONE_BY_CONE:
+        if not by_ray:
             side = 0.0 if mode == V_ISOTROPIC else (1.0 if cos_v > 0.0 else -1.0)
             eps = geo.offset_rel * (vmag + ymag)
             # the first leg: what a photon leaving v towards y meets first (past y by a little: Embree's float32)
@@ -247,11 +255,14 @@ def organ_zone_event(v, n_draw, left, stat, geo, mat, sens, tgt, organs, photon,
                 continue                               # something else first: no such vertex y
         # the density of y, in the solid angle seen from v, of both ways of drawing it
         cos_c = abs(ex * geo.normal[k, 0] + ey * geo.normal[k, 1] + ez * geo.normal[k, 2]) / math.sqrt(d2c)
+        by_surface = 1.0 - by_bud - ZONE_BY_CONE
         if oz.total[z, 1] > 0.0:      # by area or by solid angle from the centre (per unit area of the zone)
-            p_a = ZONE_BY_AREA / oz.total[z, 0] + (1.0 - ZONE_BY_AREA - ZONE_BY_CONE) * cos_c / (d2c * oz.total[z, 1])
+            p_a = by_surface * (ZONE_BY_AREA / oz.total[z, 0] + (1.0 - ZONE_BY_AREA) * cos_c / (d2c * oz.total[z, 1]))
         else:
-            p_a = (1.0 - ZONE_BY_CONE) / oz.total[z, 0]
+            p_a = by_surface / oz.total[z, 0]
         p_w = ZONE_BY_CONE / (2.0 * math.pi * omc) + p_a * dist2 / cos_in
+        if by_bud > 0.0 and 1.0 - (dx * ax + dy * ay + dz * az) / dc <= omc_b:    # within t's own cone too
+            p_w += by_bud / (2.0 * math.pi * omc_b)
         arrive = 1.0 / (p_w * p_z * oz.picks)
         any_light = False
         for b in range(n_bands):

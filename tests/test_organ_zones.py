@@ -191,7 +191,7 @@ def test_an_open_bud_lights_its_own_inside(tmp_path):
     there, each landing making a large own event -- rare photons carrying a large share, the heavy tail of
     rose-simple4's buds' far red.  Its own surface is in its zone (zone events land inside it) and the zone events
     walk on the short legs after (:func:`kernel.organ_zones.zone_walk`).  Against counting and against the
-    estimator without either (|z| < 4), at less than 0.04 of the latter's relative variance (measured 0.006).
+    estimator without either (|z| < 4), at less than 0.04 of the latter's relative variance (measured 0.011).
     Not skipping a photon's own events inside the tube where zone events served them counts that light twice,
     and its noise with it: 0.12 (first landings) and 0.18 (the walk's legs) -- both fail."""
     scene = write_scene(tmp_path, ROOM)
