@@ -33,7 +33,7 @@ from .rays import pick_coplanar, set_ray
 from .records import DIFFUSE_R, DIFFUSE_T, T_MESH2, V_ISOTROPIC, V_LAMBERT, V_SURFACE  # noqa: F401
 from .embree import ARGS, GEOM_ID, HIT_U, HIT_V, INVALID_ID, PRIM_ID, RAYHIT
 from .rng import n_draws, uniform
-from .sampling import frame, search_cdf
+from .sampling import search_cdf, uniform_cone
 from .tallies import C_SHADOW
 
 _TFAR_MAX = 3.0e38
@@ -118,14 +118,7 @@ def cone_direction(u0, u1, u2, total, n_k, cdf, at):
     :func:`cone_pdf`."""
     k = search_cdf(cdf, at, at + n_k - 1, u0 * total) - at
     i = at + n_k + CONE_DATA * k
-    ax, ay, az, omc = cdf[i], cdf[i + 1], cdf[i + 2], cdf[i + 3]
-    g = u1 * omc                                  # 1 − cos of the angle to the axis, uniform in the cone
-    ct = 1.0 - g
-    st = math.sqrt(max(g * (2.0 - g), 0.0))
-    tb, bb = frame(ax, ay, az)
-    cp, sp = math.cos(2.0 * math.pi * u2), math.sin(2.0 * math.pi * u2)
-    return (ct * ax + st * (cp * tb[0] + sp * bb[0]), ct * ay + st * (cp * tb[1] + sp * bb[1]),
-            ct * az + st * (cp * tb[2] + sp * bb[2]))
+    return uniform_cone(cdf[i], cdf[i + 1], cdf[i + 2], cdf[i + 3], u1, u2)
 
 
 @helper

@@ -28,13 +28,13 @@ ZONE_BY_AREA = 0.2    # the rest drawn on the zone's surface: this share uniform
                       # angle seen from the target's centre
 ZONE_WALK = 50        # short legs a zone event's vertex walks on inside the zone at most (zone_walk): a photon in
                       # an open bud's tube bounces 20 times and more there (rose-simple4, far red)
-from .embree import GEOM_ID, HIT_U, HIT_V, INVALID_ID, PRIM_ID, RAYHIT, ARGS
-from .ptr import call_ptr3, load_f32, load_u32
-from .rays import magnitude, pick_coplanar, set_ray
+from .embree import GEOM_ID, INVALID_ID, PRIM_ID, RAYHIT, ARGS
+from .ptr import call_ptr3, load_u32
+from .rays import first_hit, magnitude, set_ray
 from .records import DIFFUSE_R, DIFFUSE_T, T_MESH2, V_ISOTROPIC, V_LAMBERT, V_SURFACE, OrganZones, Vertex
 from .targets import cluster_sums
 from .rng import uniform
-from .sampling import cosine_hemisphere, frame, search_cdf
+from .sampling import cosine_hemisphere, search_cdf, uniform_cone
 from .tallies import C_SHADOW
 
 
@@ -180,27 +180,16 @@ def organ_zone_event(v, n_draw, left, stat, geo, mat, sens, tgt, organs, photon,
         omc_b = 1.0 - math.sqrt(1.0 - rb2 / dc2) if dc2 > rb2 else 2.0
         by_ray = u0 < by_bud + ZONE_BY_CONE
         if by_ray:                # the first surface met in a direction from v uniform in a cone
-            dx, dy, dz = in_cone(ax / dc, ay / dc, az / dc, omc_b if u0 < by_bud else omc, u1, u2)
+            dx, dy, dz = uniform_cone(ax / dc, ay / dc, az / dc, omc_b if u0 < by_bud else omc, u1, u2)
             cos_v = dx * nx + dy * ny + dz * nz
             side = 0.0 if mode == V_ISOTROPIC else (1.0 if cos_v > 0.0 else -1.0)
             eps = geo.offset_rel * vmag
-            set_ray(scratch, vx + side * eps * nx, vy + side * eps * ny, vz + side * eps * nz, dx, dy, dz,
-                    dc + math.sqrt(near_r2) + 4.0 * eps)
             stats.counters[C_SHADOW] += 1
-            call_ptr3(geo.intersect, geo.scene, rh, scratch + ARGS)
-            gid = load_u32(rh + GEOM_ID)
-            if gid == INVALID_ID:
+            k, yx, yy, yz = first_hit(geo, scratch, vx + side * eps * nx, vy + side * eps * ny,
+                                      vz + side * eps * nz, dx, dy, dz, dc + math.sqrt(near_r2) + 4.0 * eps, state)
+            if k < 0:
                 continue
-            k = load_u32(rh + PRIM_ID) + geo.geom_offset[gid]
-            bu, bv = load_f32(rh + HIT_U), load_f32(rh + HIT_V)
             a = geo.verts[k]
-            b0 = 1.0 - bu - bv
-            yx = b0 * a[0, 0] + bu * a[1, 0] + bv * a[2, 0]
-            yy = b0 * a[0, 1] + bu * a[1, 1] + bv * a[2, 1]
-            yz = b0 * a[0, 2] + bu * a[1, 2] + bv * a[2, 2]
-            if geo.cop_start[k + 1] > geo.cop_start[k]:   # coincident surfaces: as a photon picks among them
-                k = pick_coplanar(k, yx, yy, yz, dx, dy, dz, geo, state)
-                a = geo.verts[k]
             rec = geo.receiver[k]
             if (rec < 0 or geo.plane_id[k] >= 0 or (rec == tgt.ref[t] and oz.own[t] == 0)
                     or not near_listed(t, k, tgt)):
@@ -281,19 +270,6 @@ def organ_zone_event(v, n_draw, left, stat, geo, mat, sens, tgt, organs, photon,
 
 
 @helper
-def in_cone(ax, ay, az, omc, u1, u2):
-    """A direction uniform in the cone about unit axis a whose half angle θ has 1 − cos θ = ``omc`` (2: every
-    direction), from two uniforms; its density is 1 / (2π · omc)."""
-    g = u1 * omc
-    ct = 1.0 - g
-    st = math.sqrt(max(g * (2.0 - g), 0.0))
-    tb, bb = frame(ax, ay, az)
-    cp, sp = math.cos(2.0 * math.pi * u2), math.sin(2.0 * math.pi * u2)
-    return (ct * ax + st * (cp * tb[0] + sp * bb[0]), ct * ay + st * (cp * tb[1] + sp * bb[1]),
-            ct * az + st * (cp * tb[2] + sp * bb[2]))
-
-
-@helper
 def zone_walk(y, t, n_legs, stat, geo, mat, sens, tgt, oz, photon, stats, n_out):
     """The short legs after a zone event's vertex ``y`` (:class:`~kernel.records.Vertex` on organ t's zone, reached
     by a photon of weights ``photon.w2``): where a photon leaving y diffusely lands on t's zone again, within t's
@@ -313,7 +289,6 @@ def zone_walk(y, t, n_legs, stat, geo, mat, sens, tgt, oz, photon, stats, n_out)
     w2, state, scratch = photon.w2, photon.state, photon.scratch
     n_bands = w2.shape[0]
     near_r2 = tgt.near_r2[t]
-    rh = scratch + RAYHIT
     for _ in range(n_legs):
         sr = st = 0.0
         for b in range(n_bands):
@@ -328,22 +303,12 @@ def zone_walk(y, t, n_legs, stat, geo, mat, sens, tgt, oz, photon, stats, n_out)
             ev, q, side = DIFFUSE_T, st / (sr + st), -1.0
         dx, dy, dz = cosine_hemisphere(side * kx, side * ky, side * kz, u1, u2)
         eps = geo.offset_rel * max(abs(yx), abs(yy), abs(yz), yscale)
-        set_ray(scratch, yx + side * eps * kx, yy + side * eps * ky, yz + side * eps * kz, dx, dy, dz,
-                math.sqrt(near_r2))
         stats.counters[C_SHADOW] += 1
-        call_ptr3(geo.intersect, geo.scene, rh, scratch + ARGS)
-        gid = load_u32(rh + GEOM_ID)
-        if gid == INVALID_ID:
+        k2, px, py, pz = first_hit(geo, scratch, yx + side * eps * kx, yy + side * eps * ky, yz + side * eps * kz,
+                                   dx, dy, dz, math.sqrt(near_r2), state)
+        if k2 < 0:
             return n_out
-        k2 = load_u32(rh + PRIM_ID) + geo.geom_offset[gid]
-        bu, bv = load_f32(rh + HIT_U), load_f32(rh + HIT_V)
-        b0 = 1.0 - bu - bv
         a = geo.verts[k2]
-        px = b0 * a[0, 0] + bu * a[1, 0] + bv * a[2, 0]
-        py = b0 * a[0, 1] + bu * a[1, 1] + bv * a[2, 1]
-        pz = b0 * a[0, 2] + bu * a[1, 2] + bv * a[2, 2]
-        if geo.cop_start[k2 + 1] > geo.cop_start[k2]:     # coincident surfaces: as a photon picks among them
-            k2 = pick_coplanar(k2, px, py, pz, dx, dy, dz, geo, state)
         rec = geo.receiver[k2]
         if rec < 0 or geo.plane_id[k2] >= 0:
             return n_out                                 # not organ surface

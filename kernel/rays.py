@@ -98,6 +98,29 @@ def pick_coplanar(tri, px, py, pz, dx, dy, dz, geo, state):
 
 
 @helper
+def first_hit(geo, scratch, ox, oy, oz, dx, dy, dz, tfar, state):
+    """The first surface a ray from o (already off its surface) along unit d meets within ``tfar``:
+    ``(triangle, x, y, z)``, triangle -1 where none; the point from Embree's barycentric coordinates on the
+    triangle's own vertices (float64), coincident surfaces picked as a photon picks among them."""
+    rh = scratch + RAYHIT
+    set_ray(scratch, ox, oy, oz, dx, dy, dz, tfar)
+    call_ptr3(geo.intersect, geo.scene, rh, scratch + ARGS)
+    gid = load_u32(rh + GEOM_ID)
+    if gid == INVALID_ID:
+        return -1, ox, oy, oz
+    k = load_u32(rh + PRIM_ID) + geo.geom_offset[gid]
+    bu, bv = load_f32(rh + HIT_U), load_f32(rh + HIT_V)
+    a = geo.verts[k]
+    b0 = 1.0 - bu - bv
+    px = b0 * a[0, 0] + bu * a[1, 0] + bv * a[2, 0]
+    py = b0 * a[0, 1] + bu * a[1, 1] + bv * a[2, 1]
+    pz = b0 * a[0, 2] + bu * a[1, 2] + bv * a[2, 2]
+    if geo.cop_start[k + 1] > geo.cop_start[k]:   # coincident surfaces: as a photon picks among them
+        k = pick_coplanar(k, px, py, pz, dx, dy, dz, geo, state)
+    return k, px, py, pz
+
+
+@helper
 def hit_on_plane(geo, scratch, plane_of, plane, dx, dy, dz, state):
     """Trace the ray already set in the scratch block (direction d); if what a photon would meet first (a
     coplanar tie picked at random, as at a photon's hit) lies on plane ``plane`` of ``plane_of`` (T,), return

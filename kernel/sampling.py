@@ -71,6 +71,19 @@ def cosine_hemisphere_pdf(nx, ny, nz, dx, dy, dz):
 
 
 @helper
+def uniform_cone(ax, ay, az, omc, u1, u2):
+    """A direction uniform in the cone about unit axis a whose half angle θ has 1 − cos θ = ``omc`` (2: every
+    direction), from two uniforms; its density is 1 / (2π · omc)."""
+    g = u1 * omc                                  # 1 − cos of the angle to the axis, uniform in the cone
+    ct = 1.0 - g
+    st = math.sqrt(max(g * (2.0 - g), 0.0))
+    tb, bb = frame(ax, ay, az)
+    cp, sp = math.cos(2.0 * math.pi * u2), math.sin(2.0 * math.pi * u2)
+    return (ct * ax + st * (cp * tb[0] + sp * bb[0]), ct * ay + st * (cp * tb[1] + sp * bb[1]),
+            ct * az + st * (cp * tb[2] + sp * bb[2]))
+
+
+@helper
 def mirror(dx, dy, dz, nx, ny, nz):
     """Perfect specular reflection of ``d`` about the plane of unit normal ``n``."""
     c = 2.0 * (dx * nx + dy * ny + dz * nz)
