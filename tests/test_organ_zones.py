@@ -10,7 +10,6 @@ import numpy as np
 import pytest
 import trimesh
 
-from lpy_light import simulate
 from lpy_light.kernel.importance import cluster_cdf, draw
 from lpy_light.kernel.organ_zones import solid_angles
 from lpy_light.kernel.records import T_MESH2
@@ -139,15 +138,21 @@ def test_importance_picks_favour_the_targets_beside_a_vertex(pocket):
     assert chi2 < drawn.sum() + 5 * math.sqrt(2 * drawn.sum()), chi2
 
 
-def test_zones_are_the_other_organs_surface_within_the_near_radius(pocket):
-    """The bud's zone is the leaf's triangles within its near radius (none of its own, none of the chamber);
-    each zone's cumulative areas and solid angles end at 1 and its totals are their sums."""
-    scene, organs = pocket
+def _bud_scene(scene, organs):
+    """The pocket's KernelScene with its organs set, the bud the only kind of target (no sensors)."""
     model = LightModel(scene, organs={"Bud": GREEN, "Leaf": THIN}, lamp_flux=100.0, plant_unit="mm",
                        position=(500, 500, 0), photons=1, targets=["Bud"])
     ks = model.kscene
     ks.nee_sensors = False
     ks.set_organs(model.organs_from_meshes(organs), model.materials)
+    return ks
+
+
+def test_zones_are_the_other_organs_surface_within_the_near_radius(pocket):
+    """The bud's zone is the leaf's triangles within its near radius (none of its own, none of the chamber);
+    each zone's cumulative areas and solid angles end at 1 and its totals are their sums."""
+    scene, organs = pocket
+    ks = _bud_scene(scene, organs)
     oz, tgt = ks.organ_events.zones, ks.targets
     bud = tgt.receiver_target[0]
     z = int(np.flatnonzero(oz.target == bud)[0])
@@ -221,11 +226,7 @@ def test_which_landings_the_zone_events_served(pocket):
     from lpy_light.kernel.nee import zone_served
 
     scene, organs = pocket
-    model = LightModel(scene, organs={"Bud": GREEN, "Leaf": THIN}, lamp_flux=100.0, plant_unit="mm",
-                       position=(500, 500, 0), photons=1, targets=["Bud"])
-    ks = model.kscene
-    ks.nee_sensors = False
-    ks.set_organs(model.organs_from_meshes(organs), model.materials)
+    ks = _bud_scene(scene, organs)
     (scene_rec, nee) = ks.records()
     tgt, geo, ev = nee.targets, scene_rec.geometry, nee.organs
     bud = tgt.receiver_target[0]
