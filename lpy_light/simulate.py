@@ -226,7 +226,8 @@ class KernelScene:
         self.nee_images2 = 0.25     # next events through two perfect mirrors per vertex, on average (0: none)
         self.nee_zones = 0.3        # two-step next events through the surface beside a disc, per vertex (0: none)
         self.nee_importance = True  # next events to organs: picks by importance (kernel.importance), organ zones
-        self.nee_organ_zones = 0.25  # two-step next events through the organ surface beside a bud, per vertex
+        self.nee_organ_zones = None  # two-step next events through the organ surface beside a bud, per vertex
+                                     # (None: organ_zone_rate, 0.25 for closed buds up to 1 where all are open)
         self.nee_zone_walk = ZONE_WALK  # ... each walking on that many short legs inside the bud's zone at most
         self.nee_open_zones = True  # an open bud's own surface in its zone (set before set_organs)
         self.compile_seconds = 0.0  # seconds spent compiling the kernel for this scene (:func:`compile_kernel`)
@@ -531,8 +532,9 @@ class KernelScene:
             # own events, and the zone events' own noise was the largest part of some leaves' variance (a 16-rose
             # canopy's p90 leaf: 49 % of σ² for 4 % of its light)
             zw = np.where(large, 0.0, ev.zones.weight)
+            rate = organ_zone_rate(zw, ev.zones.own) if self.nee_organ_zones is None else float(self.nee_organ_zones)
             organs = ev._replace(weight=f64(ev.weight), far_weight=f64(far), cluster_weight=cluster_sums(far, ev.clusters),
-                                 cones=cones, zones=ev.zones._replace(picks=float(self.nee_organ_zones), weight=f64(zw),
+                                 cones=cones, zones=ev.zones._replace(picks=rate, weight=f64(zw),
                                                                       walk=int(self.nee_zone_walk),
                                                                       cluster_weight=cluster_sums(zw, ev.clusters)))
         return scene, NextEvents(targets, mirrors, zones, control, organs)
@@ -564,6 +566,24 @@ CONE_RAYS = 12.0
 #: procedural rose of ``benchmarks/rose.py``, 344 targets: leaves' σ² × time 2x lower, buds' 1.15x); a canopy of
 #: 4 roses (1,376 targets) and more gains (``benchmarks/canopy.py``: 16 roses' cost to leaves 3 % 3.5x lower)
 CONE_TARGETS = 1000
+
+
+ZONES_CLOSED = 0.25     # organ zone events per vertex where every bud with a zone is closed (rose.lpy's icospheres)
+ZONES_OPEN = 1.0        # ... where every one is open (rose-simple4's F() Sphere() tubes)
+
+
+def organ_zone_rate(weight, own) -> float:
+    """The default organ zone events per vertex (``KernelScene.nee_organ_zones`` None), for the zone weights
+    ``weight`` (n,) (> 0: the target has zone events) and ``own`` (n,) (its own surface is in its zone: an open
+    organ): from :data:`ZONES_CLOSED` to :data:`ZONES_OPEN` with the share of open ones.  An open bud's far red
+    comes mostly through its zone events (entries into the tube, then walks), so more of them pay there: on
+    rose-simple4 at lit step 15, 1 event per vertex against 0.25 gave the R:FR's spread over eight seeds 0.063
+    → 0.028 for +44 % CPU (its variance 2.2x lower per CPU second), 2 per vertex 0.030 for +91 %; a closed bud's
+    light comes mostly from picks and own events (the procedural rose: no rate from 0 to 1.5 moved its σ²·CPU
+    by more than ~10 %)."""
+    zoned = np.asarray(weight) > 0
+    share = float(np.mean(np.asarray(own)[zoned] != 0)) if zoned.any() else 0.0
+    return ZONES_CLOSED + (ZONES_OPEN - ZONES_CLOSED) * share
 
 
 def cones_for(n_targets: int) -> float:
