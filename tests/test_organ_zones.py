@@ -198,7 +198,7 @@ def test_an_open_bud_lights_its_own_inside(tmp_path):
     walk on the short legs after (:func:`kernel.organ_zones.zone_walk`).  Against counting and against the
     estimator without either (|z| < 4), at less than 0.04 of the latter's relative variance (measured 0.011).
     Not skipping a photon's own events inside the tube where zone events served them counts that light twice,
-    and its noise with it: 0.12 (first landings) and 0.18 (the walk's legs) -- both fail."""
+    and its noise with it: 0.12 (first landings) and 0.38 (the walk's legs) -- both fail."""
     scene = write_scene(tmp_path, ROOM)
     white = {"reflectance": 0.8}
     organs = {k: (mesh, white, "Bud") for k, (mesh, _, kind) in _pocket().items() if kind == "Bud"}
