@@ -8,8 +8,11 @@ variance.  The zone of an organ target t is the organ surface within its near ra
 other organs where a vertex makes an own event for t, :func:`organ_zones`); from every next-event vertex v
 a point y of a random zone is drawn and the light that the segment leaving v would bring to t through y
 estimated (:func:`organ_zone_event`): the photon vertices that land there are replaced by an estimate from
-every vertex.  A photon that does land on a zone straight from a next-event vertex skips those own events
-(:func:`kernel.nee.next_event`, ``organ_cover``): every path is counted once, unbiased.
+every vertex.  An open organ (rose-simple4's buds: ``F() Sphere()``, a tube open at both ends) has its own
+surface in its zone too: light that enters it bounces inside.  From y, a walk follows the short legs a photon
+would make inside the zone, an own event at each landing (:func:`zone_walk`).  A photon that does land on a
+zone straight from a next-event vertex, or walks on there by short legs, skips those own events
+(:func:`kernel.nee.zone_served`): every path is counted once, unbiased.
 
 Deposits in photons of weight, lengths in scene units, solid angles in steradians.
 """
