@@ -278,8 +278,9 @@ def zone_walk(y, t, n_legs, stat, geo, mat, sens, tgt, oz, photon, stats, n_out)
     by a photon of weights ``photon.w2``): where a photon leaving y diffusely lands on t's zone again, within t's
     near radius of y, the own next event it would make there for t (:func:`kernel.nee.target_event`), and so on
     from that landing, ``n_legs`` legs at most.  The far red a bud gets from the leaf tissue around it after
-    several bounces there: in a wedge between a leaf and the bud (R + T ≈ 1) a photon bounces many times, each
-    time making a large own event -- rare photons, each carrying much of the bud's far red.
+    several bounces there: inside an open bud (rose-simple4's tube) or a wedge between a leaf and the bud (R + T ≈ 1
+    in the far red) a photon bounces many times, each time making a large own event -- rare photons, each
+    carrying much of the bud's far red.
 
     Each leg: the side s (reflected, or transmitted) drawn with probability q_s ∝ Σ_b w_b P_s,b(m), a direction
     cosine-distributed on it, and the first surface met within √``tgt.near_r2[t]``; it must be organ surface within
