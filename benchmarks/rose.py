@@ -159,6 +159,8 @@ def main():
                     help="next events through a mirror per vertex, on average (default: LightModel's, 0.2)")
     ap.add_argument("--cones", type=float, default=None,
                     help="rays into far organ clusters' cones per vertex (default: LightModel's: none below 1,000 targets)")
+    ap.add_argument("--local", type=float, default=None,
+                    help="local rays per vertex near a cluster (default: LightModel's: none below 1,000 targets)")
     ap.add_argument("--lpy", action="store_true",
                     help="grow lsystems/rose.lpy in the real L-Py (needs L-Py/PlantGL) and time where a step goes")
     ap.add_argument("--model", default=None,
@@ -177,6 +179,8 @@ def main():
         model.mirror_events = args.images
     if args.cones is not None:
         model.kscene.nee_cones = args.cones
+    if args.local is not None:
+        model.kscene.nee_local = args.local
     print("chamber + normalisation: %.2f s (once)" % (time.perf_counter() - t0))
     print("%4s %7s %9s %8s %9s %9s %9s %10s %10s %10s %10s" % ("step", "organs", "triangles", "step s", "CPU s",
                                                                  "convert s", "trace s", "leaf σ med", "leaf σ p90",

@@ -85,3 +85,14 @@ def draw(u1, u2, total, v, how, cl, tgt, cdf, exact):
     j = search_cdf(cdf, a, b - 1, u2 * s)
     p_t = (cdf[j] - (cdf[j - 1] if j > a else 0.0)) / s
     return cl.member[j], p_k * p_t
+
+
+@helper
+def near_cluster(t, vx, vy, vz, organs):
+    """Is vertex v within :data:`CLUSTER_NEAR` radii of target t's cluster (its importances summed exactly there:
+    :func:`cluster_cdf`)?"""
+    cl = organs.clusters
+    k = organs.cluster_of[t]
+    ex, ey, ez = cl.center[k, 0] - vx, cl.center[k, 1] - vy, cl.center[k, 2] - vz
+    r = CLUSTER_NEAR * cl.radius[k]
+    return ex * ex + ey * ey + ez * ez < r * r

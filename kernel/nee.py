@@ -62,7 +62,7 @@ import math
 
 import numpy as np
 
-from .importance import cluster_cdf, draw
+from .importance import cluster_cdf, draw, near_cluster
 from .jit import helper
 from .rays import seen_share
 from .records import (ABSORB, DIFFUSE_R, DIFFUSE_T, T_DISC, T_MESH1, T_MESH2, T_QUAD, V_ISOTROPIC,  # noqa: F401
@@ -387,7 +387,8 @@ def next_event(v, stat, cover, control, geo, mat, sens, tgt, zones, organs, phot
     n_near = near_start[vtri + 1] - near_start[vtri] if scale != 1.0 and vtri >= 0 else 0
     total = 0.0
     if organs is not None and scale != 1.0:   # importances of the targets not served by an own event here
-        how = (organs.weight, organs.cluster_weight, tgt.img_near2, NEAR * NEAR, n_near > 0, organs.far_weight)
+        how = (organs.near_weight, organs.cluster_weight, tgt.img_near2, NEAR * NEAR, n_near > 0,
+               organs.far_weight)
         total = cluster_cdf((vx, vy, vz), how, organs.clusters, tgt, photon.cdf, photon.exact)
         if not total > 0.0:
             n_iter = 0
@@ -410,6 +411,9 @@ def next_event(v, stat, cover, control, geo, mat, sens, tgt, zones, organs, phot
             continue          # a near target is served by its own event only; a listed one that is not near, by picks
         if j < n_near and cover_pid >= 0 and _zone_of(t, cover_pid, zones):
             continue          # served by the zone events of the vertex this photon came from
+        if (j < n_near and organs is not None and organs.near_weight[t] == 0.0
+                and near_cluster(t, vx, vy, vz, organs)):
+            continue          # a large target of a cluster v is near: served by local rays (kernel.cones)
         kind = tgt.kind[t]
         if j < n_near and kind >= T_MESH2 and n_chain > 0 and organs is not None:
             oz = organs.zones     # t has organ zone events (buds), and v is on its zone:
@@ -604,11 +608,13 @@ def deposit(t, g, cos_x, rows, geo, mat, tgt, photon, stats, n_out):
     if r2 != r1:
         nee_stats[r2, 1] += 1
     out_k[n_out] = tgt.row[t]
+    weight = 0.0
     for b in range(contrib.shape[0]):
         out_w[n_out, b] = contrib[b]
-        nee_stats[r1, 2] += contrib[b]
-        if r2 != r1:
-            nee_stats[r2, 2] += contrib[b]
+        weight += contrib[b]
+    nee_stats[r1, 2] += weight
+    if r2 != r1:
+        nee_stats[r2, 2] += weight
     n_out += 1
     if g >= 0 and tgt.abs_row[t] >= 0:
         mm = geo.material[g, 0] if cos_x < 0.0 else geo.material[g, 1]

@@ -165,6 +165,8 @@ OrganEvents = namedtuple("OrganEvents", [
     "cluster_weight",  # (K,) float64: the sum of each cluster's far weights
     "cluster_of",    # (n,) int64: the cluster of each target
     "cones",         # float: rays per vertex into the cones of the clusters v is far from (kernel.cones; 0: none)
+    "near_weight",   # (n,) float64: ... as seen from a vertex near its cluster; 0: served by local rays there
+    "local",         # float: local rays per vertex near a cluster (kernel.cones.local_events; 0: none)
     "zones",         # OrganZones: two-step next events through the organ surface beside an organ
 ])
 

@@ -42,7 +42,7 @@ import math
 import numpy as np
 from numba import njit
 
-from .cones import CONE_DATA, cone_events
+from .cones import CONE_DATA, cone_events, local_events
 from .control import add_control, control_deposits, control_products, fold_control
 from .embree import ARGS, CAND, CAND_CAP, CAND_COUNT, GEOM_ID, HIT_U, HIT_V, INVALID_ID, PRIM_ID, RAYHIT, TFAR
 from .emission import emit, pick_element
@@ -196,9 +196,10 @@ def trace_photons(scene, nee, organs, seed, first, count, tallies, stats, photon
         img_on = mir.picks > 0.0 and (tgt.on_sensors or tgt.on_receivers) and n_tgt > 0 and mir.plane.shape[0] > 0
         img2_on = img_on and mir.picks2 > 0.0 and mir.plane.shape[0] > 1
         zone_on = zones.picks > 0.0 and tgt.on_sensors and zones.target_plane.shape[0] > 0 and 0 < tgt.picks < n_tgt
-        organ_on = cone_on = False
+        organ_on = cone_on = local_on = False
         if organs is not None:
             cone_on = organs.cones > 0.0 and tgt.on_receivers and 0 < tgt.picks < n_tgt
+            local_on = organs.local > 0.0 and tgt.on_receivers and 0 < tgt.picks < n_tgt
             organ_on = (organs.zones.picks > 0.0 and tgt.on_receivers and organs.zones.target.shape[0] > 0
                         and 0 < tgt.picks < n_tgt)
         stat_planes = n_mat + tgt.from_emitter.shape[0]
@@ -264,6 +265,9 @@ def trace_photons(scene, nee, organs, seed, first, count, tallies, stats, photon
                 if organs is not None:
                     if cone_on:     # and into the cones of the organ clusters the vertex is far from
                         n_out = cone_events(vertex, stat, geo, mat, tgt, organs, photon, stats, 0)
+                        nh = record_all(n_out, nh, photon, accum)
+                    if local_on:    # and as the photon leaves, to the large targets of the clusters it is near
+                        n_out = local_events(vertex, stat, geo, mat, tgt, organs, photon, stats, 0)
                         nh = record_all(n_out, nh, photon, accum)
                     n_oz = n_draws(organs.zones.picks, state) if organ_on and room else 0
                     if n_oz > 0:   # and through one diffuse vertex on the organ surface beside an organ

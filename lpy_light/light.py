@@ -152,13 +152,21 @@ class LightModel:
     cone_rays : float or None
         With ``estimator="nee"``: rays per vertex into the cones of the clusters of organs the vertex is far
         from, the first organ met tallied (:mod:`lpy_light.kernel.cones`; fewer where the cones hold little of
-        the vertex's light; 0: picks serve those organs too).  Default None: 12 for scenes of 1,000 organ
+        the vertex's light; 0: picks serve those organs too).  Default None: 24 for scenes of 1,000 organ
         targets or more (a canopy), else 0 (:func:`lpy_light.simulate.cones_for`: a single plant's few hundred
         targets gain less than the rays cost).  Leaves and other large targets
         get their light from across the chamber this way; a pick is one target in n, a cone ray is not, and it
         does not aim at an organ hidden behind others.  Rose (``benchmarks/rose.py --photons 1.15e6``): leaves'
         p90 σ 2.6 → 1.5 %, buds' median 4.4 → 3.3 %, a step 4.1 → 6.3 s; 16 roses (``benchmarks/canopy.py``):
         the cost to leaves' p90 3 % 697 → ~200 CPU s.
+    local_rays : float or None
+        With ``estimator="nee"``: rays per vertex near a cluster of organs, drawn as the photon would leave
+        the vertex, the first large organ (leaf) of a near cluster met tallied, in place of those leaves' own
+        next events and picks (:func:`lpy_light.kernel.cones.local_events`; 0: own events and picks serve
+        them).  Default None: 8 (:data:`lpy_light.simulate.LOCAL_RAYS`).  Amid a plant a vertex on a leaf is near
+        dozens of leaves; rays meet those it sees, in proportion to its light.  16 roses: the cost to leaves'
+        p90 3 % 67 → 48 CPU s (12 cone rays); the rose (``benchmarks/rose.py --photons 1.15e6``): leaves' p90
+        2.7 → 2.5 % at the same CPU, and picks left to the buds.
     lamp_scale : float or mapping
         Multiplies the lamps' photon flux: a number (dimmer or brighter lamps, all bands), or
         ``{"LO-HI": factor}`` for the bands lying within LO-HI nm (``{"700-800": 2.0}``: a far-red
@@ -179,7 +187,7 @@ class LightModel:
                  estimator: str = "nee", lamp_flux=None, normalisation_photons: int = 1_000_000,
                  progress=None, nee_picks: int = 2, targets=None, mirror_events: float | None = None,
                  precision: float | None = None, lamp_scale=1.0, colour_top: float | None = None,
-                 one_sided_organs: bool = False, cone_rays: float | None = None):
+                 one_sided_organs: bool = False, cone_rays: float | None = None, local_rays: float | None = None):
         self.chamber = scene if hasattr(scene, "triangles") else load_scene(resolve_scene(str(scene)))
         if plant_unit not in UNITS:
             raise InputError("unknown plant_unit %r (use one of %s)" % (plant_unit, ", ".join(UNITS)))
@@ -203,6 +211,9 @@ class LightModel:
         if cone_rays is not None and not 0 <= float(cone_rays) <= 64:
             raise InputError("cone_rays must be between 0 and 64 (rays into the organ clusters' cones per vertex)")
         self.kscene.nee_cones = None if cone_rays is None else float(cone_rays)
+        if local_rays is not None and not 0 <= float(local_rays) <= 64:
+            raise InputError("local_rays must be between 0 and 64 (rays per vertex to the large organs around it)")
+        self.kscene.nee_local = None if local_rays is None else float(local_rays)
         self.targets = None if targets is None else {str(t) for t in ([targets] if isinstance(targets, str) else targets)}
         if self.targets is not None and not self.targets <= set(self.organ_materials):
             raise InputError("targets %s are not organ modules (organs: %s)"

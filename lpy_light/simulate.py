@@ -233,6 +233,8 @@ class KernelScene:
         self.compile_seconds = 0.0  # seconds spent compiling the kernel for this scene (:func:`compile_kernel`)
         self.nee_cones = None       # rays into the cones of the organ clusters a vertex is far from, per vertex at most
                                     # (kernel.cones; 0: picks among all clusters instead; None: cones_for(targets))
+        self.nee_local = None       # local rays per vertex near a cluster, to its large targets (kernel.cones.local_events;
+                                    # 0: picks serve them; None: local_for(targets))
         tris = chamber.triangles
         area = 0.5 * np.linalg.norm(np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0]), axis=1)
         keep = np.isfinite(tris).all(axis=(1, 2)) & (area > 0)
@@ -393,7 +395,7 @@ class KernelScene:
             cluster_of = np.zeros(n_tgt, np.int64)
             cluster_of[clusters.member] = np.repeat(np.arange(len(clusters.radius)), np.diff(clusters.start))
             self.organ_events = OrganEvents(clusters, weight, weight, cluster_sums(weight, clusters), cluster_of,
-                                            0.0, zones)
+                                            0.0, weight, 0.0, zones)
 
     def prune_next_events(self, photons: int = 8192, max_share: float = 0.0, seed: int = 987654321,
                           threads=None, min_rays: int = 256, keep=()) -> dict:
@@ -528,13 +530,15 @@ class KernelScene:
             large = cone_served(self.targets.area, ev.clusters)
             if cones > 0:        # large targets served by cone rays from vertices far from their cluster
                 far = np.where(large, 0.0, ev.weight)
+            local = local_for(len(self.targets.kind)) if self.nee_local is None else float(self.nee_local)
+            near = np.where(large, 0.0, ev.weight) if local > 0 else ev.weight    # ... by local rays from near ones
             # organ zone events for the small targets only (buds): a leaf's near light comes well enough from its
             # own events, and the zone events' own noise was the largest part of some leaves' variance (a 16-rose
             # canopy's p90 leaf: 49 % of σ² for 4 % of its light)
             zw = np.where(large, 0.0, ev.zones.weight)
             rate = organ_zone_rate(zw, ev.zones.own) if self.nee_organ_zones is None else float(self.nee_organ_zones)
             organs = ev._replace(weight=f64(ev.weight), far_weight=f64(far), cluster_weight=cluster_sums(far, ev.clusters),
-                                 cones=cones, zones=ev.zones._replace(picks=rate, weight=f64(zw),
+                                 cones=cones, near_weight=f64(near), local=local, zones=ev.zones._replace(picks=rate, weight=f64(zw),
                                                                       walk=int(self.nee_zone_walk),
                                                                       cluster_weight=cluster_sums(zw, ev.clusters)))
         return scene, NextEvents(targets, mirrors, zones, control, organs)
@@ -558,8 +562,10 @@ COMPILE_NOTE_AFTER = 1.0
 #: 12 since the mirror's light comes by cone rays too (kernel.images.image_cones) and organ zone events serve the
 #: buds only, which left the direct cone rays' own noise 98 % of the p90 leaf's variance on 16 roses
 #: (``benchmarks/canopy.py``, cost to leaves' p90 3 %, one seed: 16 roses 6 rays 100.7 CPU s, 8 90.1, 12 79.1,
-#: 16 80.2; 4 roses 8 rays 12.0, 12 10.6; with 4 rays, before the organ zones' change, 16 roses cost 131)
-CONE_RAYS = 12.0
+#: 16 80.2; 4 roses 8 rays 12.0, 12 10.6; with 4 rays, before the organ zones' change, 16 roses cost 131).
+#: 24 since local rays serve the near clusters' leaves (eighteenth session), which left the cone rays most of the
+#: variance: 16 roses 12 rays 48.1, 24 40.9; 4 roses 7.0 either way
+CONE_RAYS = 24.0
 #: below this many targets, picks alone serve the organs by default: a plant's few hundred targets are each drawn
 #: often enough from far vertices that the rays cost more than they save (the rose of ``lsystems/rose.lpy`` in
 #: L-Py at step 29, 1e6 photons: the step 2.6 → 6.3 s, leaves' σ 1.6 → 1.2 %, buds' 3.8 → 3.7 %; the
@@ -584,6 +590,16 @@ def organ_zone_rate(weight, own) -> float:
     zoned = np.asarray(weight) > 0
     share = float(np.mean(np.asarray(own)[zoned] != 0)) if zoned.any() else 0.0
     return ZONES_CLOSED + (ZONES_OPEN - ZONES_CLOSED) * share
+
+
+#: local rays per vertex near a cluster of organ targets (:func:`lpy_light.kernel.cones.local_events`) by default,
+#: serving the large targets (leaves) of the clusters the vertex is near in place of their own events and picks
+LOCAL_RAYS = 8.0
+
+
+def local_for(n_targets: int) -> float:
+    """The default number of local rays per vertex near a cluster (see above)."""
+    return LOCAL_RAYS
 
 
 def cones_for(n_targets: int) -> float:
