@@ -149,20 +149,22 @@ def cases(tmp: Path) -> dict:
 # now from the targets' cumulative areas, which round differently); then the two rose cases with next events through
 # a mirror to organs drawn by importance seen from the vertex's image, and cone rays from it, and organ zone events
 # for the buds only, 0.25 per vertex, and (rose-cones) 0.1 events through a mirror where cone rays are on
-# (sixteenth session)
+# (sixteenth session); then the two rose cases with local rays (8 per vertex near a cluster) serving the near
+# clusters' leaves, and angers-12bands-nee with a next event's weight summed over the bands before it is added
+# to nee_stats (eighteenth session)
 PINNED = {
     "angers-weighted": "5b880b19bca006d238e3918ea965cc5ada7a727bb738cfbc354761ae687b9b81",
     "angers-nee": "793fcdff765279220c0e43c9115dcb01a4b84c4d2be964c709c5b4d5cf03a427",
     "angers-analog": "42755ef2f42771a1914394682bdc4faa00ac2ff8f63b741203b172f7811dec57",
-    "angers-12bands-nee": "a35218313acdd03d8efe30afceef7d756fca9089a82d9904c7c46c33fa6dd397",
+    "angers-12bands-nee": "3f72cd42edea79ffe218ca561e59dd588041bcf02f732a20ac0d9d430ac7fae1",
     "angers-12bands-analog": "a24c0e3a3c84f50ed8cacba5f951b418a0bc495c9359bb2ee92a5f37ffab2342",
     "room-line-nee": "8be655c2c7eed6aabf27d9015c2f90362a39e545d573b9429c1d5f6b686cfd80",
     "room-line-nee-all": "334c76242754985e788eb69c3790ab8feda89317a1f2628958b9a558d9280098",
     "room-line-weighted": "c7d42d71b5c767043f1e8ec90838e2f94856d9283c8c561cd7be56c0fa3a5a6b",
     "room-lambertian-nee": "cd73a7907c81ec744f1ee14fc1452ecc8d67bdc82f40691cef18f6ed6fb01fb1",
     "room-lambertian-analog": "22c08b31f224eb5c161b766a925e443d33ca195c3ccb7f1120776b4a908fcb42",
-    "rose-nee": "e91bdc66beb12d67d49f81c758f110aa6bc664966f67e4dead4b61b4a463731e",
-    "rose-cones": "760208c8bbac8053254a0949a3f82d0b1271d8aad1a3c4c6220d6b961418f355",
+    "rose-nee": "b6ba8bc9751692fdbe62ccb2d05e580d5d4eee007e6f9447e8bb7aa484d76d6b",
+    "rose-cones": "ae3fc47f62f693fc6680c4357d79e91e63a55744c37933ab939db5608e6df55d",
 }
 
 
