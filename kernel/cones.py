@@ -38,10 +38,8 @@ import math
 from .importance import CLUSTER_NEAR, near_cluster
 from .jit import helper
 from .nee import INV_4PI, deposit, view_factors
-from .ptr import call_ptr3, load_f32, load_u32
-from .rays import pick_coplanar, set_ray
+from .rays import first_hit
 from .records import DIFFUSE_R, DIFFUSE_T, T_MESH2, V_ISOTROPIC, V_LAMBERT, V_SURFACE  # noqa: F401
-from .embree import ARGS, GEOM_ID, HIT_U, HIT_V, INVALID_ID, PRIM_ID, RAYHIT
 from .rng import n_draws, uniform
 from .sampling import cosine_hemisphere, search_cdf, uniform_cone, uniform_sphere
 from .tallies import C_SHADOW
@@ -145,28 +143,11 @@ def first_target(origin, d, near, near_r2, geo, tgt, organs, photon, n_k, at):
     the first surface met if it is a target organ that cone rays serve from the point the cones were drawn
     from (``cdf[at:]``, :func:`cone_cdf`), else t = -1.  ``near`` = (point, test): with test, a target whose
     centre is within √``near_r2[t]`` of the point is served otherwise (an own event, or a counted crossing)."""
-    scratch, cdf, state = photon.scratch, photon.cdf, photon.state
-    rh = scratch + RAYHIT
-    set_ray(scratch, origin[0], origin[1], origin[2], d[0], d[1], d[2], _TFAR_MAX)
-    call_ptr3(geo.intersect, geo.scene, rh, scratch + ARGS)
-    gid = load_u32(rh + GEOM_ID)
-    if gid == INVALID_ID:
-        return -1, -1, 0.0
-    tri = load_u32(rh + PRIM_ID) + geo.geom_offset[gid]
-    rec = geo.receiver[tri]
+    tri, _, _, _ = first_hit(geo, photon.scratch, origin[0], origin[1], origin[2], d[0], d[1], d[2], _TFAR_MAX,
+                             photon.state)
+    rec = geo.receiver[tri] if tri >= 0 else -1
     if rec < 0 or tgt.receiver_target[rec] < 0:
-        return -1, -1, 0.0                        # the chamber, or an organ that is no target
-    bu, bv = load_f32(rh + HIT_U), load_f32(rh + HIT_V)
-    b0 = 1.0 - bu - bv
-    verts = geo.verts
-    hx = b0 * verts[tri, 0, 0] + bu * verts[tri, 1, 0] + bv * verts[tri, 2, 0]
-    hy = b0 * verts[tri, 0, 1] + bu * verts[tri, 1, 1] + bv * verts[tri, 2, 1]
-    hz = b0 * verts[tri, 0, 2] + bu * verts[tri, 1, 2] + bv * verts[tri, 2, 2]
-    if geo.cop_start[tri + 1] > geo.cop_start[tri]:   # coincident surfaces: as a photon picks among them
-        tri = pick_coplanar(tri, hx, hy, hz, d[0], d[1], d[2], geo, state)
-        rec = geo.receiver[tri]
-        if rec < 0 or tgt.receiver_target[rec] < 0:
-            return -1, -1, 0.0
+        return -1, -1, 0.0                        # nothing, the chamber, or an organ that is no target
     t = tgt.receiver_target[rec]
     px, py, pz, test = near
     ex, ey, ez = px - tgt.center[t, 0], py - tgt.center[t, 1], pz - tgt.center[t, 2]
@@ -174,7 +155,7 @@ def first_target(origin, d, near, near_r2, geo, tgt, organs, photon, n_k, at):
         return -1, -1, 0.0                        # served by its own event there (or counted)
     if organs.far_weight[t] > 0.0:
         return -1, -1, 0.0                        # a small target: served by picks from every cluster
-    if cdf[at + OMC * n_k + organs.cluster_of[t]] == 0.0:
+    if photon.cdf[at + OMC * n_k + organs.cluster_of[t]] == 0.0:
         return -1, -1, 0.0                        # its cluster is near: served by local rays (or picks)
     cos_x = d[0] * geo.normal[tri, 0] + d[1] * geo.normal[tri, 1] + d[2] * geo.normal[tri, 2]
     if tgt.kind[t] != T_MESH2 and cos_x >= 0.0:
@@ -275,28 +256,11 @@ def local_target(origin, d, v, n_near, geo, tgt, organs, photon):
     the first surface met if it is a target organ that local rays serve from vertex ``v`` (a large target,
     ``organs.near_weight`` 0, of a cluster v is near, neither served by an own event at v -- within its near
     radius, ``n_near`` > 0 -- nor counted -- within √``tgt.near2``), else t = -1."""
-    scratch, state = photon.scratch, photon.state
-    rh = scratch + RAYHIT
-    set_ray(scratch, origin[0], origin[1], origin[2], d[0], d[1], d[2], _TFAR_MAX)
-    call_ptr3(geo.intersect, geo.scene, rh, scratch + ARGS)
-    gid = load_u32(rh + GEOM_ID)
-    if gid == INVALID_ID:
-        return -1, -1, 0.0
-    tri = load_u32(rh + PRIM_ID) + geo.geom_offset[gid]
-    rec = geo.receiver[tri]
+    tri, _, _, _ = first_hit(geo, photon.scratch, origin[0], origin[1], origin[2], d[0], d[1], d[2], _TFAR_MAX,
+                             photon.state)
+    rec = geo.receiver[tri] if tri >= 0 else -1
     if rec < 0 or tgt.receiver_target[rec] < 0:
-        return -1, -1, 0.0                        # the chamber, or an organ that is no target
-    if geo.cop_start[tri + 1] > geo.cop_start[tri]:   # coincident surfaces: as a photon picks among them
-        bu, bv = load_f32(rh + HIT_U), load_f32(rh + HIT_V)
-        b0 = 1.0 - bu - bv
-        verts = geo.verts
-        hx = b0 * verts[tri, 0, 0] + bu * verts[tri, 1, 0] + bv * verts[tri, 2, 0]
-        hy = b0 * verts[tri, 0, 1] + bu * verts[tri, 1, 1] + bv * verts[tri, 2, 1]
-        hz = b0 * verts[tri, 0, 2] + bu * verts[tri, 1, 2] + bv * verts[tri, 2, 2]
-        tri = pick_coplanar(tri, hx, hy, hz, d[0], d[1], d[2], geo, state)
-        rec = geo.receiver[tri]
-        if rec < 0 or tgt.receiver_target[rec] < 0:
-            return -1, -1, 0.0
+        return -1, -1, 0.0                        # nothing, the chamber, or an organ that is no target
     t = tgt.receiver_target[rec]
     if organs.near_weight[t] > 0.0 or not near_cluster(t, v[0], v[1], v[2], organs):
         return -1, -1, 0.0                        # served by picks (a small target), or by cone rays (far)
