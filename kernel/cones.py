@@ -138,17 +138,26 @@ def cone_direction(u0, u1, u2, total, n_k, cdf, at):
 
 
 @helper
+def target_met(origin, d, geo, tgt, photon):
+    """The first surface a ray from ``origin`` (already off its surface) along unit ``d`` meets, if a target organ:
+    ``(t, triangle)``; (-1, -1) where it meets nothing, the chamber, or an organ that is no target."""
+    tri, _, _, _ = first_hit(geo, photon.scratch, origin[0], origin[1], origin[2], d[0], d[1], d[2], _TFAR_MAX,
+                             photon.state)
+    rec = geo.receiver[tri] if tri >= 0 else -1
+    if rec < 0 or tgt.receiver_target[rec] < 0:
+        return -1, -1
+    return tgt.receiver_target[rec], tri
+
+
+@helper
 def first_target(origin, d, near, near_r2, geo, tgt, organs, photon, n_k, at):
     """Trace a cone ray from ``origin`` (already off its surface) along unit ``d``: ``(t, triangle, cos θ_x)`` of
     the first surface met if it is a target organ that cone rays serve from the point the cones were drawn
     from (``cdf[at:]``, :func:`cone_cdf`), else t = -1.  ``near`` = (point, test): with test, a target whose
     centre is within √``near_r2[t]`` of the point is served otherwise (an own event, or a counted crossing)."""
-    tri, _, _, _ = first_hit(geo, photon.scratch, origin[0], origin[1], origin[2], d[0], d[1], d[2], _TFAR_MAX,
-                             photon.state)
-    rec = geo.receiver[tri] if tri >= 0 else -1
-    if rec < 0 or tgt.receiver_target[rec] < 0:
-        return -1, -1, 0.0                        # nothing, the chamber, or an organ that is no target
-    t = tgt.receiver_target[rec]
+    t, tri = target_met(origin, d, geo, tgt, photon)
+    if t < 0:
+        return -1, -1, 0.0
     px, py, pz, test = near
     ex, ey, ez = px - tgt.center[t, 0], py - tgt.center[t, 1], pz - tgt.center[t, 2]
     if test and ex * ex + ey * ey + ez * ez < near_r2[t]:
@@ -193,6 +202,25 @@ def leaving(cos_v, mode, front, back):
 
 
 @helper
+def leaving_deposit(met, scale, side, v, stat, geo, mat, tgt, photon, stats, n_out):
+    """Deposit on the target a ray from vertex ``v`` met, ``met`` = (t, triangle, cos θ_x): the photon's weights
+    times v's diffuse probability on ``side`` (±1; 1 for an emitter) times ``scale`` (the leaving pdf over the
+    ray's, over the mean number of rays), unless nothing is; counted in ``stats.nee_stats[stat]``.  Returns the
+    new count of ``photon.out_k`` / ``out_w``."""
+    t, tri, cos_x = met
+    mode, m = v[6], v[7]
+    contrib, w = photon.contrib, photon.w
+    any_light = False
+    for b in range(w.shape[0]):
+        f = 1.0 if mode != V_SURFACE else mat.prob[m, DIFFUSE_R if side > 0.0 else DIFFUSE_T, b]
+        contrib[b] = w[b] * f * scale
+        any_light = any_light or contrib[b] > 0.0
+    if any_light:
+        n_out = deposit(t, tri, cos_x, (stat, stat), geo, mat, tgt, photon, stats, n_out)
+    return n_out
+
+
+@helper
 def cone_events(v, stat, geo, mat, tgt, organs, photon, stats, n_out):
     """Rays from vertex ``v`` (:class:`~kernel.records.Vertex`) into the cones of the far clusters of organ
     targets (see above): a random whole number of them, of mean μ = :func:`ray_mean` (C); the deposits of those
@@ -201,9 +229,8 @@ def cone_events(v, stat, geo, mat, tgt, organs, photon, stats, n_out):
     vx, vy, vz, nx, ny, nz, mode, m, vscale, vtri = v
     cl = organs.clusters
     n_k = cl.radius.shape[0]
-    cdf, state, contrib, w = photon.cdf, photon.state, photon.contrib, photon.w
+    cdf, state = photon.cdf, photon.state
     counters, nee_stats = stats.counters, stats.nee_stats
-    n_bands = w.shape[0]
     at = tgt.kind.shape[0] + n_k            # after the picks' importances (kernel.importance.cluster_cdf)
     front, back = leaving_sides(v, mat)
     total = cone_cdf(v, (front, back), cl, cdf, at)
@@ -228,14 +255,8 @@ def cone_events(v, stat, geo, mat, tgt, organs, photon, stats, n_out):
         pdf = cone_pdf(dx, dy, dz, total, n_k, cdf, at)
         if not pdf > 0.0:
             continue
-        scale = p_leave / (mean * pdf)
-        any_light = False
-        for b in range(n_bands):
-            f = 1.0 if mode != V_SURFACE else mat.prob[m, DIFFUSE_R if side > 0.0 else DIFFUSE_T, b]
-            contrib[b] = w[b] * f * scale
-            any_light = any_light or contrib[b] > 0.0
-        if any_light:
-            n_out = deposit(t, tri, cos_x, (stat, stat), geo, mat, tgt, photon, stats, n_out)
+        n_out = leaving_deposit((t, tri, cos_x), p_leave / (mean * pdf), side, v, stat, geo, mat, tgt, photon, stats,
+                                n_out)
     return n_out
 
 
@@ -251,17 +272,14 @@ def any_near_cluster(vx, vy, vz, cl):
 
 
 @helper
-def local_target(origin, d, v, n_near, geo, tgt, organs, photon):
+def local_target(origin, d, v, geo, tgt, organs, photon):
     """Trace a local ray from ``origin`` (already off its surface) along unit ``d``: ``(t, triangle, cos θ_x)`` of
     the first surface met if it is a target organ that local rays serve from vertex ``v`` (a large target,
-    ``organs.near_weight`` 0, of a cluster v is near, neither served by an own event at v -- within its near
-    radius, ``n_near`` > 0 -- nor counted -- within √``tgt.near2``), else t = -1."""
-    tri, _, _, _ = first_hit(geo, photon.scratch, origin[0], origin[1], origin[2], d[0], d[1], d[2], _TFAR_MAX,
-                             photon.state)
-    rec = geo.receiver[tri] if tri >= 0 else -1
-    if rec < 0 or tgt.receiver_target[rec] < 0:
-        return -1, -1, 0.0                        # nothing, the chamber, or an organ that is no target
-    t = tgt.receiver_target[rec]
+    ``organs.near_weight`` 0, of a cluster v is near, not counted on the photon's own segment -- within
+    √``tgt.near2``), else t = -1.  (Its own events at v skip it: :func:`kernel.nee.next_event`.)"""
+    t, tri = target_met(origin, d, geo, tgt, photon)
+    if t < 0:
+        return -1, -1, 0.0
     if organs.near_weight[t] > 0.0 or not near_cluster(t, v[0], v[1], v[2], organs):
         return -1, -1, 0.0                        # served by picks (a small target), or by cone rays (far)
     ex, ey, ez = v[0] - tgt.center[t, 0], v[1] - tgt.center[t, 1], v[2] - tgt.center[t, 2]
@@ -285,16 +303,14 @@ def local_events(v, stat, geo, mat, tgt, organs, photon, stats, n_out):
     vx, vy, vz, nx, ny, nz, mode, m, vscale, vtri = v
     if not any_near_cluster(vx, vy, vz, organs.clusters):
         return n_out
-    state, contrib, w = photon.state, photon.contrib, photon.w
+    state = photon.state
     counters, nee_stats = stats.counters, stats.nee_stats
-    n_bands = w.shape[0]
     front, back = leaving_sides(v, mat)
     if not front + back > 0.0:
         return n_out
     mean = organs.local
     n_rays = n_draws(mean, state)
     vmag = max(abs(vx), abs(vy), abs(vz), vscale)
-    n_near = tgt.near_start[vtri + 1] - tgt.near_start[vtri] if vtri >= 0 else 0
     p_front = front / (front + back)
     for _ in range(n_rays):
         u0, u1, u2 = uniform(state), uniform(state), uniform(state)
@@ -311,15 +327,10 @@ def local_events(v, stat, geo, mat, tgt, organs, photon, stats, n_out):
         counters[C_SHADOW] += 1
         nee_stats[stat, 0] += 1
         t, tri, cos_x = local_target((vx + eps * nx, vy + eps * ny, vz + eps * nz), (dx, dy, dz), (vx, vy, vz),
-                                     n_near, geo, tgt, organs, photon)
+                                     geo, tgt, organs, photon)
         if t < 0:
             continue
-        scale = 1.0 / (mean * p_side)      # the leaving pdf over the draw's: |cos|/π over p_side · |cos|/π
-        any_light = False
-        for b in range(n_bands):
-            f = 1.0 if mode != V_SURFACE else mat.prob[m, DIFFUSE_R if side > 0.0 else DIFFUSE_T, b]
-            contrib[b] = w[b] * f * scale
-            any_light = any_light or contrib[b] > 0.0
-        if any_light:
-            n_out = deposit(t, tri, cos_x, (stat, stat), geo, mat, tgt, photon, stats, n_out)
+        # the leaving pdf over the draw's: |cos|/π over p_side · |cos|/π
+        n_out = leaving_deposit((t, tri, cos_x), 1.0 / (mean * p_side), side, v, stat, geo, mat, tgt, photon, stats,
+                                n_out)
     return n_out
