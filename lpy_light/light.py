@@ -163,10 +163,10 @@ class LightModel:
         With ``estimator="nee"``: rays per vertex near a cluster of organs, drawn as the photon would leave
         the vertex, the first large organ (leaf) of a near cluster met tallied, in place of those leaves' own
         next events and picks (:func:`lpy_light.kernel.cones.local_events`; 0: own events and picks serve
-        them).  Default None: 8 (:data:`lpy_light.simulate.LOCAL_RAYS`).  Amid a plant a vertex on a leaf is near
-        dozens of leaves; rays meet those it sees, in proportion to its light.  16 roses: the cost to leaves'
-        p90 3 % 67 → 48 CPU s (12 cone rays); the rose (``benchmarks/rose.py --photons 1.15e6``): leaves' p90
-        2.7 → 2.5 % at the same CPU, and picks left to the buds.
+        them).  Default None: 8 for scenes of 1,000 organ targets or more (a canopy), else 0
+        (:func:`lpy_light.simulate.local_for`).  Amid a canopy a vertex on a leaf is near dozens of leaves; rays
+        meet those it sees, in proportion to its light.  16 roses: the cost to leaves' p90 3 % 67 → 48 CPU s (12
+        cone rays); on a single rose the own events serve the few leaves around a vertex as well or better.
     lamp_scale : float or mapping
         Multiplies the lamps' photon flux: a number (dimmer or brighter lamps, all bands), or
         ``{"LO-HI": factor}`` for the bands lying within LO-HI nm (``{"700-800": 2.0}``: a far-red

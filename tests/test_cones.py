@@ -14,6 +14,7 @@ import trimesh
 from lpy_light.kernel.cones import CONE_DATA, OMC, cone_cdf, cone_direction, cone_pdf
 from lpy_light.kernel.records import V_ISOTROPIC, V_SURFACE, Clusters, Vertex
 from lpy_light.light import LightModel
+from lpy_light.errors import InputError
 from scenes import rad_polygon, write_scene
 
 from test_organ_zones import GREEN, ROOM, THIN
@@ -184,6 +185,17 @@ def test_cone_rays_by_default_for_a_canopy_only():
     model = LightModel("angers", organs={"Leaf": THIN}, plant_unit="mm", photons=1000)
     assert model.kscene.nee_cones is None
     assert LightModel("angers", organs={"Leaf": THIN}, plant_unit="mm", photons=1000, cone_rays=2).kscene.nee_cones == 2.0
+
+
+def test_local_rays_by_default_for_a_canopy_only():
+    """By default a plant's organs keep their own events and picks, a canopy's leaves around a vertex get 8 local
+    rays; an explicit setting holds either way, and one out of range is refused."""
+    from lpy_light.simulate import CONE_TARGETS, LOCAL_RAYS, local_for
+    assert local_for(CONE_TARGETS - 1) == 0.0 and local_for(CONE_TARGETS) == LOCAL_RAYS == 8.0
+    assert LightModel("angers", organs={"Leaf": THIN}, plant_unit="mm", photons=1000).kscene.nee_local is None
+    assert LightModel("angers", organs={"Leaf": THIN}, plant_unit="mm", photons=1000, local_rays=2).kscene.nee_local == 2.0
+    with pytest.raises(InputError, match="local_rays"):
+        LightModel("angers", organs={"Leaf": THIN}, plant_unit="mm", photons=1000, local_rays=-1)
 
 
 def test_half_the_events_through_a_mirror_where_cone_rays_are_on():

@@ -149,11 +149,11 @@ def cases(tmp: Path) -> dict:
 # now from the targets' cumulative areas, which round differently); then the two rose cases with next events through
 # a mirror to organs drawn by importance seen from the vertex's image, and cone rays from it, and organ zone events
 # for the buds only, 0.25 per vertex, and (rose-cones) 0.1 events through a mirror where cone rays are on
-# (sixteenth session); then the two rose cases with local rays (8 per vertex near a cluster) serving the near
-# clusters' leaves, and angers-12bands-nee with a next event's weight summed over the bands before it is added
-# to nee_stats, and rose-cones with a cone ray's coincident surfaces picked before asking whether the surface met
-# is a target (as a photon picks: kernel.rays.first_hit; before, a non-target triangle with a coincident target
-# ended the ray) (eighteenth session)
+# (sixteenth session); then angers-12bands-nee with a next event's weight summed over the bands before it is
+# added to nee_stats, and rose-cones with a cone ray's coincident surfaces picked before asking whether the
+# surface met is a target (as a photon picks: kernel.rays.first_hit; before, a non-target triangle with a
+# coincident target ended the ray) (eighteenth session; a plant has no local rays by default, so rose-nee is
+# as before)
 PINNED = {
     "angers-weighted": "5b880b19bca006d238e3918ea965cc5ada7a727bb738cfbc354761ae687b9b81",
     "angers-nee": "793fcdff765279220c0e43c9115dcb01a4b84c4d2be964c709c5b4d5cf03a427",
@@ -165,8 +165,8 @@ PINNED = {
     "room-line-weighted": "c7d42d71b5c767043f1e8ec90838e2f94856d9283c8c561cd7be56c0fa3a5a6b",
     "room-lambertian-nee": "cd73a7907c81ec744f1ee14fc1452ecc8d67bdc82f40691cef18f6ed6fb01fb1",
     "room-lambertian-analog": "22c08b31f224eb5c161b766a925e443d33ca195c3ccb7f1120776b4a908fcb42",
-    "rose-nee": "b6ba8bc9751692fdbe62ccb2d05e580d5d4eee007e6f9447e8bb7aa484d76d6b",
-    "rose-cones": "d6547455565f51282c6e7dda988b95b564aed5cebb08955d16527ba8ed322f70",
+    "rose-nee": "e91bdc66beb12d67d49f81c758f110aa6bc664966f67e4dead4b61b4a463731e",
+    "rose-cones": "4eacc87754cde4e69ce4d8d790eccdc0fe7664096832e8bb27b08d7c98537aea",
 }
 
 
