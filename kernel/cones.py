@@ -19,7 +19,8 @@ and the deposit is the photon's weight times the leaving pdf p(ω) over (rays ·
 deposit at most about C / rays of the photon's weight, however many organs there are and whichever one hides
 which.  Which targets which estimator serves is fixed by v alone (a split of the path space, as in
 :func:`kernel.nee.next_event`): a target with an own event at v (within its near radius) by that event; one
-of a cluster v is within :data:`~kernel.importance.CLUSTER_NEAR` radii of by picks; the others by these rays.
+of a cluster v is within :data:`~kernel.importance.CLUSTER_NEAR` radii of by picks (or by local rays, below);
+the others by these rays.
 
 **Local rays** (:func:`local_events`) serve the large targets (leaves) of the clusters v is near: rays drawn as
 the photon would leave v (cosine-weighted, each side in proportion to its largest diffuse reflectance or
@@ -86,9 +87,9 @@ AXIS_X, AXIS_Y, AXIS_Z, OMC, DENSITY = 1, 2, 3, 4, 5     # plane p of cluster k:
 def cone_cdf(v, side, cl, cdf, at):
     """Cumulative weights ``c_k`` of the K clusters' cones seen from vertex v into ``cdf[at : at + K]``, and each
     cone's axis, ``1 − cos θ`` (0: a near cluster) and ``c_k / Ω_k`` into ``cdf[at + p · K + k]``, p =
-    :data:`AXIS_X` ... :data:`DENSITY`; returns the sum C of the weights.  ``side`` = (front, back): how much of the leaving light goes to each side
-    of a surface (its bands' largest diffuse reflectance and transmittance; (1, 0) for a Lambertian emitter,
-    (1, 1) isotropic)."""
+    :data:`AXIS_X` ... :data:`DENSITY`; returns the sum C of the weights.  ``side`` = (front, back): how much of
+    the leaving light goes to each side of a surface (its bands' largest diffuse reflectance and transmittance;
+    (1, 0) for a Lambertian emitter, (1, 1) isotropic)."""
     vx, vy, vz, nx, ny, nz, mode, m, vscale, vtri = v
     c0, c1 = view_factors(mode)
     front, back = side

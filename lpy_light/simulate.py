@@ -538,9 +538,9 @@ class KernelScene:
             zw = np.where(large, 0.0, ev.zones.weight)
             rate = organ_zone_rate(zw, ev.zones.own) if self.nee_organ_zones is None else float(self.nee_organ_zones)
             organs = ev._replace(weight=f64(ev.weight), far_weight=f64(far), cluster_weight=cluster_sums(far, ev.clusters),
-                                 cones=cones, near_weight=f64(near), local=local, zones=ev.zones._replace(picks=rate, weight=f64(zw),
-                                                                      walk=int(self.nee_zone_walk),
-                                                                      cluster_weight=cluster_sums(zw, ev.clusters)))
+                                 cones=cones, near_weight=f64(near), local=local,
+                                 zones=ev.zones._replace(picks=rate, weight=f64(zw), walk=int(self.nee_zone_walk),
+                                                         cluster_weight=cluster_sums(zw, ev.clusters)))
         return scene, NextEvents(targets, mirrors, zones, control, organs)
 
     def trace(self, seed: int, first: int, count: int, records=None):
