@@ -114,17 +114,20 @@ def cone_cdf(v, side, cl, cdf, at):
 def cone_pdf(dx, dy, dz, total, n_k, cdf, at):
     """The density (1/sr) of direction d among :func:`cone_cdf`'s cones (summing to ``total``): Σ over the cones
     holding d of (c_k / C) / Ω_k (a near cluster's c_k is 0).  Without branches, in two sums: a ray's
-    direction is in a few cones of the K, unpredictably."""
-    x, y, z, o, c = at + AXIS_X * n_k, at + AXIS_Y * n_k, at + AXIS_Z * n_k, at + OMC * n_k, at + DENSITY * n_k
+    direction is in a few cones of the K, unpredictably.  (Over views of the planes, indexed from 0: the
+    index needs no wraparound test, and the loop is ~3x shorter than with ``cdf[at + p · K + k]``.)"""
+    ax, ay = cdf[at + AXIS_X * n_k:at + (AXIS_X + 1) * n_k], cdf[at + AXIS_Y * n_k:at + (AXIS_Y + 1) * n_k]
+    az, om = cdf[at + AXIS_Z * n_k:at + (AXIS_Z + 1) * n_k], cdf[at + OMC * n_k:at + (OMC + 1) * n_k]
+    de = cdf[at + DENSITY * n_k:at + (DENSITY + 1) * n_k]
     pdf0 = pdf1 = 0.0
     for k in range(0, n_k - 1, 2):
-        in0 = 1.0 - (dx * cdf[x + k] + dy * cdf[y + k] + dz * cdf[z + k]) <= cdf[o + k]
-        in1 = 1.0 - (dx * cdf[x + k + 1] + dy * cdf[y + k + 1] + dz * cdf[z + k + 1]) <= cdf[o + k + 1]
-        pdf0 += cdf[c + k] if in0 else 0.0
-        pdf1 += cdf[c + k + 1] if in1 else 0.0
+        in0 = 1.0 - (dx * ax[k] + dy * ay[k] + dz * az[k]) <= om[k]
+        in1 = 1.0 - (dx * ax[k + 1] + dy * ay[k + 1] + dz * az[k + 1]) <= om[k + 1]
+        pdf0 += de[k] if in0 else 0.0
+        pdf1 += de[k + 1] if in1 else 0.0
     if n_k % 2 == 1:
         k = n_k - 1
-        pdf0 += cdf[c + k] if 1.0 - (dx * cdf[x + k] + dy * cdf[y + k] + dz * cdf[z + k]) <= cdf[o + k] else 0.0
+        pdf0 += de[k] if 1.0 - (dx * ax[k] + dy * ay[k] + dz * az[k]) <= om[k] else 0.0
     return (pdf0 + pdf1) / total
 
 

@@ -65,3 +65,21 @@ def call_ptr3(typingctx, fn, a, b, c):
         return context.get_dummy_value()
 
     return sig, codegen
+
+
+@intrinsic
+def prefetch(typingctx, addr):
+    """Hint the processor to bring the cache line at address ``addr`` closer for writing (``llvm.prefetch``;
+    no effect on results)."""
+    sig = types.void(types.uint64)
+
+    def codegen(context, builder, signature, args):
+        i32 = ir.IntType(32)
+        fnty = ir.FunctionType(ir.VoidType(), [_I8P, i32, i32, i32])
+        fn = builder.module.globals.get("llvm.prefetch.p0")
+        if fn is None:
+            fn = ir.Function(builder.module, fnty, name="llvm.prefetch.p0")
+        builder.call(fn, [builder.inttoptr(args[0], _I8P), i32(1), i32(3), i32(1)])
+        return context.get_dummy_value()
+
+    return sig, codegen

@@ -11,7 +11,10 @@ hits, R receivers' absorbed weight, then the photon's fates — absorbed per mat
 cut at max_depth, lost to numerical failure — and a last row holding each photon's total deposit over the
 fates, whose mean is 1 per band: energy closure with its own standard error.
 """
+import numpy as np
+
 from .jit import helper
+from .ptr import prefetch
 
 # counters
 C_RAYS, C_CAND_OVERFLOW, C_SCRATCH_FLUSH, C_LOST, C_SHADOW, C_BATCHES = 0, 1, 2, 3, 4, 5
@@ -47,6 +50,26 @@ def record_all(n_out, n_rows, photon, accum):
     return n_rows
 
 
+#: rows of ``tally`` and ``tally_sq`` asked ahead of their turn in :func:`flush`: amid a canopy a photon adds to
+#: dozens of rows spread over megabytes (16 roses: 16,500 rows of 1.2 kB), and each row's first access missed
+#: the caches (~10 % of a 16-rose step)
+PREFETCH_ROWS = 3
+_LINE = 64
+
+
+@helper
+def prefetch_row(k, base, stride, base_sq, stride_sq):
+    """Prefetch row k of ``tally`` and ``tally_sq`` (given by their base addresses and row strides, in bytes)."""
+    if k < 0:
+        return
+    a = base + k * stride
+    for off in range(0, stride + _LINE, _LINE):
+        prefetch(np.uint64(a + off))
+    a = base_sq + k * stride_sq
+    for off in range(0, stride_sq + _LINE, _LINE):
+        prefetch(np.uint64(a + off))
+
+
 @helper
 def flush(n_rows, fate0, accum, tallies):
     """Add one photon's contributions (its rows of ``accum.acc``, in the order first touched): sums and
@@ -59,8 +82,14 @@ def flush(n_rows, fate0, accum, tallies):
     total_row = tally.shape[0] - 1
     n_bands = acc.shape[1]
     tot[:] = 0.0
+    base, base_sq = np.int64(tally.ctypes.data), np.int64(tally_sq.ctypes.data)
+    stride, stride_sq = tally.strides[0], tally_sq.strides[0]
+    for a in range(min(n_rows, PREFETCH_ROWS)):
+        prefetch_row(rows[a], base, stride, base_sq, stride_sq)
     for a in range(n_rows):
         k = rows[a]
+        if a + PREFETCH_ROWS < n_rows:
+            prefetch_row(rows[a + PREFETCH_ROWS], base, stride, base_sq, stride_sq)
         if k < 0:
             continue
         for b in range(n_bands):
