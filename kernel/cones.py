@@ -94,6 +94,8 @@ def cone_cdf(v, side, cl, cdf, at):
     c0, c1 = view_factors(mode)
     front, back = side
     n_k = cl.radius.shape[0]
+    cum, px, py = cdf[at:at + n_k], cdf[at + AXIS_X * n_k:at + (AXIS_X + 1) * n_k], cdf[at + AXIS_Y * n_k:]
+    pz, po, pd = cdf[at + AXIS_Z * n_k:], cdf[at + OMC * n_k:], cdf[at + DENSITY * n_k:]   # views: see cone_pdf
     total = 0.0
     for k in range(n_k):
         d, ax, ay, az, s, omc = cone_of(k, vx, vy, vz, cl)
@@ -103,10 +105,10 @@ def cone_cdf(v, side, cl, cdf, at):
             f = front if cosc - s > 0.0 else (back if cosc + s < 0.0 else max(front, back))
             c = 2.0 * math.pi * omc * f * (c0 + c1 * min(1.0, abs(cosc) + s))
         total += c
-        cdf[at + k] = total
-        cdf[at + AXIS_X * n_k + k], cdf[at + AXIS_Y * n_k + k], cdf[at + AXIS_Z * n_k + k] = ax, ay, az
-        cdf[at + OMC * n_k + k] = omc
-        cdf[at + DENSITY * n_k + k] = c / (2.0 * math.pi * omc) if c > 0.0 else 0.0
+        cum[k] = total
+        px[k], py[k], pz[k] = ax, ay, az
+        po[k] = omc
+        pd[k] = c / (2.0 * math.pi * omc) if c > 0.0 else 0.0
     return total
 
 

@@ -135,19 +135,21 @@ def _faces(vx, vy, vz, g, geo):
 def facing_triangle(vx, vy, vz, t, u, tgt, geo):
     """A triangle of mesh target t whose front faces v, drawn by area among those from a uniform ``u``, and their
     total area (scene units²); (-1, 0) if none faces v.  Two passes over t's triangles (a dot product each; the
-    areas are the targets' cumulative ones)."""
+    areas are the targets' cumulative ones; over views from t's first triangle, indexed from 0: no wraparound
+    tests in a loop that buds, 80 triangles each, make ~6 % of a 16-rose step)."""
     first, count = tgt.first[t], tgt.count[t]
+    tri, cum = tgt.tri[first:first + count], tgt.tri_cdf[first:first + count]
     share = 0.0
-    for i in range(first, first + count):
-        if _faces(vx, vy, vz, tgt.tri[i], geo):
-            share += tgt.tri_cdf[i] - (tgt.tri_cdf[i - 1] if i > first else 0.0)
+    for i in range(count):
+        if _faces(vx, vy, vz, tri[i], geo):
+            share += cum[i] - (cum[i - 1] if i > 0 else 0.0)
     if not share > 0.0:
         return -1, 0.0
     goal, run, last = u * share, 0.0, -1
-    for i in range(first, first + count):
-        g = tgt.tri[i]
+    for i in range(count):
+        g = tri[i]
         if _faces(vx, vy, vz, g, geo):
-            run += tgt.tri_cdf[i] - (tgt.tri_cdf[i - 1] if i > first else 0.0)
+            run += cum[i] - (cum[i - 1] if i > 0 else 0.0)
             last = g
             if run >= goal:
                 break
