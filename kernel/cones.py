@@ -36,6 +36,8 @@ Lengths in scene units, solid angles in steradians, deposits in photons of weigh
 """
 import math
 
+import numpy as np
+
 from .importance import CLUSTER_NEAR, near_cluster
 from .jit import helper
 from .nee import INV_4PI, deposit, view_factors
@@ -122,11 +124,12 @@ def cone_pdf(dx, dy, dz, total, n_k, cdf, at):
     az, om = cdf[at + AXIS_Z * n_k:at + (AXIS_Z + 1) * n_k], cdf[at + OMC * n_k:at + (OMC + 1) * n_k]
     de = cdf[at + DENSITY * n_k:at + (DENSITY + 1) * n_k]
     pdf0 = pdf1 = 0.0
-    for k in range(0, n_k - 1, 2):
+    for j in range(n_k // 2):
+        k, k1 = np.uint64(2 * j), np.uint64(2 * j + 1)      # unsigned: no wraparound test either
         in0 = 1.0 - (dx * ax[k] + dy * ay[k] + dz * az[k]) <= om[k]
-        in1 = 1.0 - (dx * ax[k + 1] + dy * ay[k + 1] + dz * az[k + 1]) <= om[k + 1]
+        in1 = 1.0 - (dx * ax[k1] + dy * ay[k1] + dz * az[k1]) <= om[k1]
         pdf0 += de[k] if in0 else 0.0
-        pdf1 += de[k + 1] if in1 else 0.0
+        pdf1 += de[k1] if in1 else 0.0
     if n_k % 2 == 1:
         k = n_k - 1
         pdf0 += de[k] if 1.0 - (dx * ax[k] + dy * ay[k] + dz * az[k]) <= om[k] else 0.0

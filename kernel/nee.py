@@ -142,14 +142,14 @@ def facing_triangle(vx, vy, vz, t, u, tgt, geo):
     share = 0.0
     for i in range(count):
         if _faces(vx, vy, vz, tri[i], geo):
-            share += cum[i] - (cum[i - 1] if i > 0 else 0.0)
+            share += cum[i] - (cum[np.uint64(i - 1)] if i > 0 else 0.0)
     if not share > 0.0:
         return -1, 0.0
     goal, run, last = u * share, 0.0, -1
     for i in range(count):
         g = tri[i]
         if _faces(vx, vy, vz, g, geo):
-            run += cum[i] - (cum[i - 1] if i > 0 else 0.0)
+            run += cum[i] - (cum[np.uint64(i - 1)] if i > 0 else 0.0)
             last = g
             if run >= goal:
                 break
