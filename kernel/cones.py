@@ -65,18 +65,36 @@ def cone_of(k, vx, vy, vz, cl):
     return d, ex / d, ey / d, ez / d, s, s * s / (1.0 + math.sqrt(1.0 - s * s))
 
 
-#: the cones' share of a vertex's light C from which it gets the full number of rays; below, √(C / C_FULL) of it
-#: (rays go where they reduce the variance most: a vertex whose cones hold little of its light deposits little
-#: through them.  Rose, 1.15e6 photons, leaves' p90 σ² × CPU: 20.1 with 2 rays at every vertex, 23.2 ∝ C,
-#: 14.3 ∝ √C with 4 rays at C ≥ 0.25)
-C_FULL = 0.25
+#: A vertex's cone rays follow what they can bring: their mean is ``cones`` × (its photon's weight, the mean over
+#: bands, 1 at the lamp) × (the share C of its light the cones hold, :func:`cone_cdf`) / W_FULL, capped at
+#: RAY_CAP × ``cones``, and NEAR_SHARE of that at a vertex within :data:`CLUSTER_NEAR` radii of a cluster.
+#: Each hit then deposits about the same weight, whatever the vertex: the rays that a variance summed over the
+#: leaves asks (n_v ∝ its deposit per hit, √ its share of rays that meet a leaf: Σ_v h_v d_v² / n_v least).
+#: Amid a canopy a vertex is near a cluster (on a leaf, the table under the bushes) and most of its cone rays
+#: meet the leaves around it; its far clusters' leaves are served better from the ceiling and the walls.
+#: 16 roses (nineteenth session, 1e6 photons, seed 3, the same ~41-45 M cone rays): the p90 leaf's σ² from the
+#: cone rays 0.67x that of ``cones`` × min(1, √(C / 0.25)) at every vertex, as before (that rule sent 8.2 M rays,
+#: 20 %, from leaves for 11 % of the cones' light, and 3.7 M from the floor and table mat for 0.9 %).
+W_FULL = 0.5
+RAY_CAP = 4.0
+NEAR_SHARE = 0.25
 
 
 @helper
-def ray_mean(cones, total):
-    """The mean number of cone rays at a vertex whose cones hold ``total`` = C of its light (see :data:`C_FULL`),
-    ``cones`` the setting (:attr:`lpy_light.simulate.KernelScene.nee_cones`, :func:`lpy_light.simulate.cones_for`)."""
-    return cones * min(1.0, math.sqrt(total / C_FULL))
+def ray_mean(cones, total, weight, near):
+    """The mean number of cone rays at a vertex whose photon has mean weight ``weight`` over the bands and whose
+    cones hold ``total`` = C of its light, ``near`` whether it is near a cluster (see :data:`W_FULL`); ``cones``
+    the setting (:attr:`lpy_light.simulate.KernelScene.nee_cones`, :func:`lpy_light.simulate.cones_for`)."""
+    return cones * min(RAY_CAP, (NEAR_SHARE if near else 1.0) * weight * total / W_FULL)
+
+
+@helper
+def mean_weight(w):
+    """The mean over the bands of a photon's weights ``w`` (B,)."""
+    s = 0.0
+    for b in range(w.shape[0]):
+        s += w[b]
+    return s / w.shape[0]
 
 
 #: per cluster, after the K cumulative weights, CONE_DATA planes of K values (:func:`cone_cdf`): the cone's axis
@@ -89,7 +107,8 @@ AXIS_X, AXIS_Y, AXIS_Z, OMC, DENSITY = 1, 2, 3, 4, 5     # plane p of cluster k:
 def cone_cdf(v, side, cl, cdf, at):
     """Cumulative weights ``c_k`` of the K clusters' cones seen from vertex v into ``cdf[at : at + K]``, and each
     cone's axis, ``1 − cos θ`` (0: a near cluster) and ``c_k / Ω_k`` into ``cdf[at + p · K + k]``, p =
-    :data:`AXIS_X` ... :data:`DENSITY`; returns the sum C of the weights.  ``side`` = (front, back): how much of
+    :data:`AXIS_X` ... :data:`DENSITY`; returns the sum C of the weights, and whether v is within
+    :data:`CLUSTER_NEAR` radii of a cluster.  ``side`` = (front, back): how much of
     the leaving light goes to each side of a surface (its bands' largest diffuse reflectance and transmittance;
     (1, 0) for a Lambertian emitter, (1, 1) isotropic)."""
     vx, vy, vz, nx, ny, nz, mode, m, vscale, vtri = v
@@ -99,9 +118,11 @@ def cone_cdf(v, side, cl, cdf, at):
     cum, px, py = cdf[at:at + n_k], cdf[at + AXIS_X * n_k:at + (AXIS_X + 1) * n_k], cdf[at + AXIS_Y * n_k:]
     pz, po, pd = cdf[at + AXIS_Z * n_k:], cdf[at + OMC * n_k:], cdf[at + DENSITY * n_k:]   # views: see cone_pdf
     total = 0.0
+    near = False
     for k in range(n_k):
         d, ax, ay, az, s, omc = cone_of(k, vx, vy, vz, cl)
         c = 0.0
+        near = near or not omc > 0.0
         if omc > 0.0:
             cosc = ax * nx + ay * ny + az * nz
             f = front if cosc - s > 0.0 else (back if cosc + s < 0.0 else max(front, back))
@@ -111,7 +132,7 @@ def cone_cdf(v, side, cl, cdf, at):
         px[k], py[k], pz[k] = ax, ay, az
         po[k] = omc
         pd[k] = c / (2.0 * math.pi * omc) if c > 0.0 else 0.0
-    return total
+    return total, near
 
 
 @helper
@@ -232,7 +253,7 @@ def leaving_deposit(met, scale, side, v, stat, geo, mat, tgt, photon, stats, n_o
 @helper
 def cone_events(v, stat, geo, mat, tgt, organs, photon, stats, n_out):
     """Rays from vertex ``v`` (:class:`~kernel.records.Vertex`) into the cones of the far clusters of organ
-    targets (see above): a random whole number of them, of mean μ = :func:`ray_mean` (C); the deposits of those
+    targets (see above): a random whole number of them, of mean μ = :func:`ray_mean`; the deposits of those
     that first meet a target organ served by them, divided by μ, go to ``photon.out_k`` / ``photon.out_w`` from
     ``n_out`` on.  Returns the new count."""
     vx, vy, vz, nx, ny, nz, mode, m, vscale, vtri = v
@@ -242,10 +263,10 @@ def cone_events(v, stat, geo, mat, tgt, organs, photon, stats, n_out):
     counters, nee_stats = stats.counters, stats.nee_stats
     at = tgt.kind.shape[0] + n_k            # after the picks' importances (kernel.importance.cluster_cdf)
     front, back = leaving_sides(v, mat)
-    total = cone_cdf(v, (front, back), cl, cdf, at)
+    total, near = cone_cdf(v, (front, back), cl, cdf, at)
     if not total > 0.0:
         return n_out
-    mean = ray_mean(organs.cones, total)
+    mean = ray_mean(organs.cones, total, mean_weight(photon.w), near)
     n_rays = n_draws(mean, state)
     vmag = max(abs(vx), abs(vy), abs(vz), vscale)
     n_near = tgt.near_start[vtri + 1] - tgt.near_start[vtri] if vtri >= 0 else 0

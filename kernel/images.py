@@ -13,7 +13,7 @@ Deposits in photons of weight, lengths in scene units, solid angles in steradian
 import math
 
 from .jit import helper
-from .cones import cone_cdf, cone_direction, cone_pdf, first_target, leaving, leaving_sides, ray_mean
+from .cones import cone_cdf, cone_direction, cone_pdf, first_target, leaving, leaving_sides, mean_weight, ray_mean
 from .importance import cluster_cdf, draw
 from .nee import END_REL, INV_4PI, NEAR, deposit, disc_point_by_solid_angle, mesh_point, seen_deposit, sensor_point
 from .rays import hit_on_plane, magnitude, set_ray
@@ -320,10 +320,10 @@ def image_cones(v, image, p_k, stat, geo, mat, tgt, mir, organs, photon, stats, 
     dn = nx * px + ny * py + nz * pz
     inx, iny, inz = nx - 2.0 * dn * px, ny - 2.0 * dn * py, nz - 2.0 * dn * pz      # v's normal, mirrored
     front, back = leaving_sides(v, mat)
-    total = cone_cdf((ix, iy, iz, inx, iny, inz, mode, m, vscale, -1), (front, back), cl, cdf, at)
+    total, near = cone_cdf((ix, iy, iz, inx, iny, inz, mode, m, vscale, -1), (front, back), cl, cdf, at)
     if not total > 0.0:
         return n_out
-    mean = ray_mean(organs.cones, total)
+    mean = ray_mean(organs.cones, total, mean_weight(w), near)
     n_rays = n_draws(mean, state)
     vmag = max(abs(vx), abs(vy), abs(vz), vscale)
     si = (ix - mir.point[pl, 0]) * px + (iy - mir.point[pl, 1]) * py + (iz - mir.point[pl, 2]) * pz

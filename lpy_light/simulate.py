@@ -564,8 +564,10 @@ COMPILE_NOTE_AFTER = 1.0
 #: (``benchmarks/canopy.py``, cost to leaves' p90 3 %, one seed: 16 roses 6 rays 100.7 CPU s, 8 90.1, 12 79.1,
 #: 16 80.2; 4 roses 8 rays 12.0, 12 10.6; with 4 rays, before the organ zones' change, 16 roses cost 131).
 #: 24 since local rays serve the near clusters' leaves (eighteenth session), which left the cone rays most of the
-#: variance: 16 roses 12 rays 48.1, 24 40.9; 4 roses 7.0 either way
-CONE_RAYS = 24.0
+#: variance: 16 roses 12 rays 48.1, 24 40.9; 4 roses 7.0 either way.
+#: 10 since the rays follow each vertex's weight × cone share, a quarter of that near a cluster
+#: (:data:`lpy_light.kernel.cones.W_FULL`; nineteenth session): 16 roses 6 rays 32.4, 8 28.1-29.9, 12 29.4
+CONE_RAYS = 10.0
 #: below this many targets, picks alone serve the organs by default: a plant's few hundred targets are each drawn
 #: often enough from far vertices that the rays cost more than they save (the rose of ``lsystems/rose.lpy`` in
 #: L-Py at step 29, 1e6 photons: the step 2.6 → 6.3 s, leaves' σ 1.6 → 1.2 %, buds' 3.8 → 3.7 %; the

@@ -25,7 +25,7 @@ def _cones(v, centers, radii, mode=V_SURFACE, side=(0.6, 0.3)):
                   np.asarray(centers, float), np.asarray(radii, float))
     cdf = np.zeros((2 + CONE_DATA) * len(radii))
     vertex = Vertex(*v, mode, 0, 1.0, -1)
-    total = cone_cdf(vertex, side, cl, cdf, 0)
+    total, _ = cone_cdf(vertex, side, cl, cdf, 0)
     return cl, cdf, total
 
 
@@ -135,7 +135,7 @@ def test_cone_rays_are_unbiased_and_lower_the_leaves_variance(canopy):
 def test_local_rays_are_unbiased_and_leave_the_picks_to_the_buds(canopy):
     """With local rays (8 per vertex near a cluster) serving the near clusters' leaves in place of their own
     events and picks, each organ's light agrees with counting (weighted, 20x the photons; |z| < 4 for each of
-    the 304 organs and for their sum), and the buds' median relative variance is below 0.75 of that without
+    the 304 organs, and for their sum over four seeds), and the buds' median relative variance is below 0.75 of that without
     (measured 0.47: the picks from amid the canopy now go to the buds only).  Fails (tried): own events that
     still serve the leaves local rays serve (a double count: leaves beyond 3.6σ).  (Local rays that also tally
     the leaves counted on the photon's own segment, within √near2, pass: too rare here to show.)"""
@@ -146,8 +146,12 @@ def test_local_rays_are_unbiased_and_leave_the_picks_to_the_buds(canopy):
     counted, counted_sd, _ = _light(scene, organs, "weighted", 4_000_000, 13)
     z = (local - counted) / np.hypot(local_sd, counted_sd)
     assert np.all(np.abs(z) < 4), z
-    zs = (local.sum() - counted.sum()) / math.hypot(np.sqrt((local_sd ** 2).sum()), np.sqrt((counted_sd ** 2).sum()))
-    assert abs(zs) < 4, zs
+    # the organs' sum, its σ from the spread over seeds: one vertex's rays reach many organs, so the organs'
+    # estimates covary and the root sum of their squared σ understates the sum's (seeds 11, 21-23: sum z from
+    # it 4.2, -0.3, -1.9, 2.4, means agreeing within 1σ of their spread)
+    sums = [local.sum()] + [_light(scene, organs, "nee", 200_000, seed, local=8.0)[0].sum() for seed in (21, 22, 23)]
+    zs = (np.mean(sums) - counted.sum()) / math.hypot(np.std(sums, ddof=1) / 2.0, np.sqrt((counted_sd ** 2).sum()))
+    assert abs(zs) < 4, (zs, sums, counted.sum())
     buds = slice(N_LEAVES, None)
     ratio = np.median((local_sd / local)[buds] ** 2) / np.median((without_sd / without)[buds] ** 2)
     assert ratio < 0.75, ratio
@@ -181,7 +185,7 @@ def test_cone_rays_by_default_for_a_canopy_only():
     """By default a plant's few hundred targets get no cone rays (they cost it more than they save), a canopy
     of 1,000 targets or more 24 per vertex; an explicit setting holds either way."""
     from lpy_light.simulate import CONE_RAYS, CONE_TARGETS, cones_for
-    assert cones_for(CONE_TARGETS - 1) == 0.0 and cones_for(CONE_TARGETS) == CONE_RAYS == 24.0
+    assert cones_for(CONE_TARGETS - 1) == 0.0 and cones_for(CONE_TARGETS) == CONE_RAYS == 10.0
     model = LightModel("angers", organs={"Leaf": THIN}, plant_unit="mm", photons=1000)
     assert model.kscene.nee_cones is None
     assert LightModel("angers", organs={"Leaf": THIN}, plant_unit="mm", photons=1000, cone_rays=2).kscene.nee_cones == 2.0
@@ -205,3 +209,15 @@ def test_half_the_events_through_a_mirror_where_cone_rays_are_on():
         return LightModel("angers", organs={"Leaf": THIN}, plant_unit="mm", photons=1000, **kw)._mirror_events()
     assert events(cone_rays=0) == 0.2 and events(cone_rays=4) == 0.1
     assert events(cone_rays=4, mirror_events=0.3) == 0.3 and events(cone_rays=0, mirror_events=0.0) == 0.0
+
+
+def test_cone_rays_follow_what_the_vertex_can_bring():
+    """A vertex's mean number of cone rays is ∝ its photon's mean weight × the cones' share of its light (each
+    hit then deposits about the same weight), capped at RAY_CAP × the setting, a quarter of it near a cluster."""
+    from lpy_light.kernel.cones import NEAR_SHARE, RAY_CAP, W_FULL, mean_weight, ray_mean
+    assert ray_mean(10.0, W_FULL, 1.0, False) == pytest.approx(10.0)
+    assert ray_mean(10.0, 0.2, 0.5, False) == pytest.approx(10.0 * 0.1 / W_FULL)
+    assert ray_mean(10.0, 0.2, 0.5, True) == pytest.approx(10.0 * NEAR_SHARE * 0.1 / W_FULL)
+    assert ray_mean(10.0, 1.0, 100.0, False) == pytest.approx(10.0 * RAY_CAP)
+    assert ray_mean(10.0, 0.3, 0.0, False) == 0.0
+    assert mean_weight(np.array([0.2, 0.4, 0.9])) == pytest.approx(0.5)

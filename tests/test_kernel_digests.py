@@ -153,7 +153,9 @@ def cases(tmp: Path) -> dict:
 # added to nee_stats, and rose-cones with a cone ray's coincident surfaces picked before asking whether the
 # surface met is a target (as a photon picks: kernel.rays.first_hit; before, a non-target triangle with a
 # coincident target ended the ray) (eighteenth session; a plant has no local rays by default, so rose-nee is
-# as before)
+# as before); then rose-cones with a vertex's cone rays ∝ its photon's mean weight × the cones' share of its light,
+# a quarter of that near a cluster (kernel.cones.ray_mean, nineteenth session; the kernel's other changes that
+# session -- prefetched tally rows, loops over views -- left every digest as it was)
 PINNED = {
     "angers-weighted": "5b880b19bca006d238e3918ea965cc5ada7a727bb738cfbc354761ae687b9b81",
     "angers-nee": "793fcdff765279220c0e43c9115dcb01a4b84c4d2be964c709c5b4d5cf03a427",
@@ -166,7 +168,7 @@ PINNED = {
     "room-lambertian-nee": "cd73a7907c81ec744f1ee14fc1452ecc8d67bdc82f40691cef18f6ed6fb01fb1",
     "room-lambertian-analog": "22c08b31f224eb5c161b766a925e443d33ca195c3ccb7f1120776b4a908fcb42",
     "rose-nee": "e91bdc66beb12d67d49f81c758f110aa6bc664966f67e4dead4b61b4a463731e",
-    "rose-cones": "4eacc87754cde4e69ce4d8d790eccdc0fe7664096832e8bb27b08d7c98537aea",
+    "rose-cones": "121c51fd6a39c6dc707aec6a73952a165e56139e38307d0c2f7b5bcf621df026",
 }
 
 
