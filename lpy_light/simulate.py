@@ -594,7 +594,8 @@ def organ_zone_rate(weight, own) -> float:
     return ZONES_CLOSED + (ZONES_OPEN - ZONES_CLOSED) * share
 
 
-#: local rays per vertex near a cluster of organ targets (:func:`lpy_light.kernel.cones.local_events`) by default,
+#: local rays per vertex near a cluster of organ targets (:func:`lpy_light.kernel.cones.local_events`; at a vertex whose
+#: photon has mean weight :data:`~lpy_light.kernel.cones.W_FULL`, more or fewer with it) by default,
 #: serving the large targets (leaves) of the clusters the vertex is near in place of their own events and picks,
 #: for scenes of at least :data:`CONE_TARGETS` organ targets (a canopy: 16 roses' cost to leaves' p90 3 % 67 → 48
 #: CPU s with 12 cone rays).  A single plant keeps its own events and picks: on the rose of ``lsystems/rose.lpy``
