@@ -70,7 +70,7 @@ def main():
     ap.add_argument("--estimators", nargs="+", default=["nee", "weighted", "analog"])
     ap.add_argument("--threads", type=int, default=None)
     ap.add_argument("--cones", type=float, default=None,
-                    help="LightModel's cone_rays (nee; default: 12 from 1,000 targets, i.e. 4 roses; 0: picks only)")
+                    help="LightModel's cone_rays (nee; default: 10 from 1,000 targets, i.e. 4 roses; 0: picks only)")
     ap.add_argument("--out", default=None, help="folder for canopy.csv and canopy.png")
     args = ap.parse_args()
     rows = []

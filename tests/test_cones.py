@@ -183,7 +183,7 @@ def test_cone_rays_through_a_mirror_are_unbiased(tmp_path):
 
 def test_cone_rays_by_default_for_a_canopy_only():
     """By default a plant's few hundred targets get no cone rays (they cost it more than they save), a canopy
-    of 1,000 targets or more 24 per vertex; an explicit setting holds either way."""
+    of 1,000 targets or more 10 per vertex (at a photon weight × cone share of 0.5); an explicit setting holds either way."""
     from lpy_light.simulate import CONE_RAYS, CONE_TARGETS, cones_for
     assert cones_for(CONE_TARGETS - 1) == 0.0 and cones_for(CONE_TARGETS) == CONE_RAYS == 10.0
     model = LightModel("angers", organs={"Leaf": THIN}, plant_unit="mm", photons=1000)
