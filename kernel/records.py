@@ -168,6 +168,10 @@ OrganEvents = namedtuple("OrganEvents", [
     "near_weight",   # (n,) float64: ... as seen from a vertex near its cluster; 0: served by local rays there
     "local",         # float: local rays per vertex near a cluster (kernel.cones.local_events; 0: none)
     "zones",         # OrganZones: two-step next events through the organ surface beside an organ
+    "pick_mean",     # float: the mean pick share S over a vertex (kernel.nee.pick_mean); picks per vertex follow
+                     # S / pick_mean (0: ``picks`` at every vertex)
+    "pick_unit",     # float: the unit of S counted in stats.counters[C_PICK_SHARE] (scene units⁻²)
+    "pick_side",     # (M,) float64: per material, the band mean of its larger diffuse reflectance or transmittance
 ])
 
 Control = namedtuple("Control", [

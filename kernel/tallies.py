@@ -18,7 +18,9 @@ from .ptr import prefetch
 
 # counters
 C_RAYS, C_CAND_OVERFLOW, C_SCRATCH_FLUSH, C_LOST, C_SHADOW, C_BATCHES = 0, 1, 2, 3, 4, 5
-N_COUNTERS = 6
+C_PICK_SHARE, C_PICK_VERTICES = 6, 7     # next events to organs: Σ of the vertices' pick shares, and the vertices
+                                          # (kernel.nee.pick_mean; in units of PICK_SHARE_UNIT · pick_unit)
+N_COUNTERS = 8
 
 
 @helper

@@ -20,11 +20,11 @@ import numpy as np
 from .errors import InputError, ResourceError
 from .kernel import embree
 from .kernel.control import build_control
-from .kernel.records import (Emitters, Geometry, Materials, Mirrors, NextEvents, OrganEvents, Scene, Sensors, Zones,
-                             f64, i32, i64, new_tallies, u8)
-from .kernel.nee import NEAR
+from .kernel.records import (DIFFUSE_R, DIFFUSE_T, Emitters, Geometry, Materials, Mirrors, NextEvents, OrganEvents,
+                             Scene, Sensors, Zones, f64, i32, i64, new_tallies, u8)
+from .kernel.nee import NEAR, SHARE_SCALE
 from .kernel.organ_zones import ZONE_WALK, organ_zones
-from .kernel.tallies import C_BATCHES, N_COUNTERS
+from .kernel.tallies import C_BATCHES, C_PICK_SHARE, C_PICK_VERTICES, N_COUNTERS
 from .kernel.targets import build_targets, cluster_sums, cone_served, target_clusters
 from .kernel.trace import trace_chunk
 from .kernel.zones import near_zones
@@ -230,6 +230,9 @@ class KernelScene:
                                      # (None: organ_zone_rate, 0.25 for closed buds up to 1 where all are open)
         self.nee_zone_walk = ZONE_WALK  # ... each walking on that many short legs inside the bud's zone at most
         self.nee_open_zones = True  # an open bud's own surface in its zone (set before set_organs)
+        self.nee_pick_share = True  # picks to organs follow each vertex's pick share (kernel.nee.PICK_CAP; False:
+                                    # nee_picks at every vertex); its mean from a pilot of PICK_PILOT photons
+        self._pick_mean = {}        # that mean, per organs and settings (records())
         self.compile_seconds = 0.0  # seconds spent compiling the kernel for this scene (:func:`compile_kernel`)
         self.nee_cones = None       # rays into the cones of the organ clusters a vertex is far from, per vertex at most
                                     # (kernel.cones; 0: picks among all clusters instead; None: cones_for(targets))
@@ -395,7 +398,8 @@ class KernelScene:
             cluster_of = np.zeros(n_tgt, np.int64)
             cluster_of[clusters.member] = np.repeat(np.arange(len(clusters.radius)), np.diff(clusters.start))
             self.organ_events = OrganEvents(clusters, weight, weight, cluster_sums(weight, clusters), cluster_of,
-                                            0.0, weight, 0.0, zones)
+                                            0.0, weight, 0.0, zones, 0.0, 1.0, np.ones(0))
+            self._pick_mean = {}
 
     def prune_next_events(self, photons: int = 8192, max_share: float = 0.0, seed: int = 987654321,
                           threads=None, min_rays: int = 256, keep=()) -> dict:
@@ -498,10 +502,13 @@ class KernelScene:
             self._assemble(np.zeros((0, 3, 3)), np.zeros((0, 2), np.int32), np.zeros(0, np.int32))
         self.scene.set_organs(tris, one_sided=self.one_sided_organs)
 
-    def records(self):
+    def records(self, note=None):
         """The kernel's records of this scene as it stands (:mod:`lpy_light.kernel.records`), with the current
         settings (``nee_*``, the sources and mirror planes switched on): ``(Scene, NextEvents or None)``, None
-        where next events have no target (``weighted``, ``analog``).  Built once per run."""
+        where next events have no target (``weighted``, ``analog``).  Built once per run.  With organs as
+        targets and ``nee_pick_share``, the vertices' mean pick share comes from a pilot of :data:`PICK_PILOT`
+        photons (one chunk, a fixed seed: the same for the same organs and settings, on any number of threads),
+        once per organs and settings; ``note`` as :func:`compile_kernel`'s, if the kernel compiles for it."""
         phys = self.chamber.physics
         nee = self.nee_sensors or self.nee_receivers
         geometry = Geometry(self.scene.handle, self.intersect, self.occluded, float(phys.offset), i64(self.geom_offset),
@@ -540,8 +547,36 @@ class KernelScene:
             organs = ev._replace(weight=f64(ev.weight), far_weight=f64(far), cluster_weight=cluster_sums(far, ev.clusters),
                                  cones=cones, near_weight=f64(near), local=local,
                                  zones=ev.zones._replace(picks=rate, weight=f64(zw), walk=int(self.nee_zone_walk),
-                                                         cluster_weight=cluster_sums(zw, ev.clusters)))
-        return scene, NextEvents(targets, mirrors, zones, control, organs)
+                                                         cluster_weight=cluster_sums(zw, ev.clusters)),
+                                 pick_unit=self._pick_unit(), pick_side=self._pick_side())
+        recs = scene, NextEvents(targets, mirrors, zones, control, organs)
+        if organs is not None and self.nee_pick_share:
+            recs = self._with_pick_mean(recs, note)
+        return recs
+
+    def _pick_unit(self) -> float:
+        """The unit of the pick shares counted by the kernel: (targets) / (the chamber's diagonal)²."""
+        span = self.tri_verts[:self.n_chamber_triangles].reshape(-1, 3)
+        diag2 = float(np.sum((span.max(axis=0) - span.min(axis=0)) ** 2)) if len(span) else 1.0
+        return len(self.targets.kind) / max(diag2, 1e-300)
+
+    def _pick_side(self) -> np.ndarray:
+        """Per material, the band mean of its larger diffuse reflectance or transmittance, (M,)."""
+        return f64(np.maximum(self.mat_prob[:, DIFFUSE_R, :], self.mat_prob[:, DIFFUSE_T, :]).mean(axis=1))
+
+    def _with_pick_mean(self, recs, note=None):
+        """``recs`` with ``organs.pick_mean`` set: the vertices' mean pick share in a pilot that draws
+        ``nee_picks`` at every vertex (cached per organs and settings)."""
+        scene, nee = recs
+        org = nee.organs
+        key = (self.nee_picks, org.cones, org.local, org.zones.picks, nee.mirrors.picks, nee.mirrors.picks2,
+               bytes(self.mat_nee), bytes(self.emit_nee), bytes(self.mir_on), self.estimator)
+        if key not in self._pick_mean:
+            compile_kernel(self, recs, note)
+            _, _, counters, _ = self.trace(PICK_SEED, 0, PICK_PILOT, recs)
+            n = int(counters[C_PICK_VERTICES])
+            self._pick_mean[key] = (float(counters[C_PICK_SHARE]) / SHARE_SCALE / n * org.pick_unit) if n else 0.0
+        return scene, nee._replace(organs=org._replace(pick_mean=self._pick_mean[key]))
 
     def trace(self, seed: int, first: int, count: int, records=None):
         """Trace one chunk through ``records`` (default: :meth:`records` now); returns (tally, tally_sq,
@@ -556,6 +591,9 @@ class KernelScene:
 
 #: a kernel not ready after this many seconds is being compiled (loading numba's cache takes well under it)
 COMPILE_NOTE_AFTER = 1.0
+#: photons of the pilot that finds the vertices' mean pick share for a plant's organs (KernelScene.records), its seed
+PICK_PILOT = 8192
+PICK_SEED = 271828
 
 
 #: cone rays per vertex (:mod:`kernel.cones`) by default, for scenes of at least :data:`CONE_TARGETS` organ targets:
@@ -718,7 +756,7 @@ class LocalThreads:
 
     def open(self, kscene, n_chunks: int, note=None) -> int:
         self._kscene = kscene
-        self._records = kscene.records()                 # the kernel's records, once for the run
+        self._records = kscene.records(note)             # the kernel's records, once for the run
         compile_kernel(kscene, self._records, note)      # here, so that a first run's compile is not tracing
         self.threads = min(self.threads, n_chunks)      # more threads than chunks would only wait
         self._pool = ThreadPoolExecutor(max_workers=self.threads)

@@ -113,7 +113,7 @@ def _light(scene, organs, estimator, photons, seed, cones=4.0, mirror_events=0.2
 
 def test_cone_rays_are_unbiased_and_lower_the_leaves_variance(canopy):
     """Each leaf's and bud's light with cone rays agrees with counting (weighted, 20x the photons) and with
-    picks alone (|z| < 4 for each of the 304 organs and for their sum); the leaves' median relative variance is
+    picks alone (|z| < 4 for each of the 304 organs; their sum over four seeds with counting); the leaves' median relative variance is
     less than 0.65 of the picks' alone at the same photons (measured 0.48; ~1 without cones).  Cone rays that also tallied the
     organs an own event serves (sum z = 6.6) or those of the near clusters (a leaf's z < -4), both double
     counts, fail the comparisons (tried)."""
@@ -125,8 +125,13 @@ def test_cone_rays_are_unbiased_and_lower_the_leaves_variance(canopy):
     for other, other_sd in ((counted, counted_sd), (picks, picks_sd)):
         z = (cones - other) / np.hypot(cones_sd, other_sd)
         assert np.all(np.abs(z) < 4), z
-        zs = (cones.sum() - other.sum()) / math.hypot(np.sqrt((cones_sd ** 2).sum()), np.sqrt((other_sd ** 2).sum()))
-        assert abs(zs) < 4, zs
+    # the organs' sum against counting, its σ from the spread over seeds: a vertex's cone rays, and its picks
+    # (as many as its light asks: kernel.nee.pick_share), reach several organs, so their estimates covary and the
+    # root sum of their squared σ understates the sum's (seeds 11, 21-23: 9308, 9329, 9283, 9281 for 9326 ± 12
+    # counted; picks alone 9404, 9260, 9333, 9271, each ± 18.5 by that root sum)
+    sums = [cones.sum()] + [_light(scene, organs, "nee", 200_000, seed)[0].sum() for seed in (21, 22, 23)]
+    zs = (np.mean(sums) - counted.sum()) / math.hypot(np.std(sums, ddof=1) / 2.0, np.sqrt((counted_sd ** 2).sum()))
+    assert abs(zs) < 4, (zs, sums, counted.sum())
     leaves = slice(0, N_LEAVES)
     ratio = np.median((cones_sd / cones)[leaves] ** 2) / np.median((picks_sd / picks)[leaves] ** 2)
     assert ratio < 0.65, ratio

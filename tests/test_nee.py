@@ -8,7 +8,7 @@ from numba import njit
 from lpy_light import simulate
 from lpy_light.kernel.nee import disc_point_by_solid_angle
 from lpy_light.kernel.rng import seed_stream, uniform
-from lpy_light.kernel.tallies import C_BATCHES
+from lpy_light.kernel.tallies import C_BATCHES, N_COUNTERS
 from lpy_light.scene import load_scene
 from scenes import box, lamp_rectangle, rad_polygon, rectangle_to_disc_fraction, write_scene
 
@@ -141,7 +141,7 @@ def test_shadow_rays_reach_thin_sliver_triangles(tmp_path):
     for i in range(200):
         seed_stream(state, 5, i)
         next_event(vertex, 0, (-1, np.int64(0)), False, scene.geometry, scene.materials, scene.sensors, tgt, nee.zones,
-                       None, photon, Stats(np.zeros(6, np.int64), stats))
+                       None, photon, Stats(np.zeros(N_COUNTERS, np.int64), stats))
     assert stats[0, 0] == 200 and stats[0, 1] == 200, "shadow rays cast, unblocked: %s" % stats[0, :2]
 
     ks.mat_nee[:] = 1

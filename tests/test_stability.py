@@ -695,11 +695,12 @@ class _FakeScene:
         t[3] = count - t[2]
         t[4] = count
         sq = t[:, :, None] * t[:, None, :] / count * (1 + 0.1 * u)
-        counters = np.array([37 * count + c % 7, 0, c % 3, 0, 11 * count, 0], np.int64)
+        counters = np.zeros(N_COUNTERS, np.int64)
+        counters[:6] = (37 * count + c % 7, 0, c % 3, 0, 11 * count, 0)
         stats = np.array([[count, count // 2, 0.5 * count * (1 + u)]], float)
         return t, sq, counters, stats
 
-    def records(self):
+    def records(self, note=None):
         return None
 
     def trace(self, seed, first, count, scene=None):
