@@ -89,8 +89,8 @@ ZONE_HEIGHT = 4.0    # a disc whose centre is nearer to a plane than this · its
 INV_4PI = 1.0 / (4.0 * math.pi)
 #: Picks to organs follow what a vertex can bring them: ``picks`` × min(PICK_CAP, S / S̄) at a vertex of pick
 #: share S (:func:`pick_share`), S̄ its mean over a pilot's vertices (:meth:`lpy_light.simulate.KernelScene.records`).
-#: Procedural rose, last step, 1.15e6 photons (twentieth session): σ²·CPU of the p90 leaf 34 → 21 %²·s, of the
-#: median bud 54 → 34, for 22 % more shadow rays.
+#: Procedural rose, last step, 1.15e6 photons (twentieth session): σ²·CPU of the p90 leaf 34 → 25-28 %²·s, of the
+#: median bud 54 → 38-43, for 5 % more shadow rays (``docs/performance.md``, "Picks where the light is").
 PICK_CAP = 4.0
 SHARE_SCALE = 1024.0    # S / pick_unit is counted in stats.counters[C_PICK_SHARE] in steps of 1 / SHARE_SCALE,
 SHARE_CLAMP = 1.0e9     # at most SHARE_CLAMP a vertex: whole numbers, so the sum is the same in any order
