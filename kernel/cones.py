@@ -40,7 +40,7 @@ import numpy as np
 
 from .importance import CLUSTER_NEAR, near_cluster
 from .jit import helper
-from .nee import INV_4PI, deposit, view_factors
+from .nee import INV_4PI, deposit, mean_weight, view_factors
 from .rays import first_hit
 from .records import DIFFUSE_R, DIFFUSE_T, T_MESH2, V_ISOTROPIC, V_LAMBERT, V_SURFACE  # noqa: F401
 from .rng import n_draws, uniform
@@ -86,15 +86,6 @@ def ray_mean(cones, total, weight, near):
     cones hold ``total`` = C of its light, ``near`` whether it is near a cluster (see :data:`W_FULL`); ``cones``
     the setting (:attr:`lpy_light.simulate.KernelScene.nee_cones`, :func:`lpy_light.simulate.cones_for`)."""
     return cones * min(RAY_CAP, (NEAR_SHARE if near else 1.0) * weight * total / W_FULL)
-
-
-@helper
-def mean_weight(w):
-    """The mean over the bands of a photon's weights ``w`` (B,)."""
-    s = 0.0
-    for b in range(w.shape[0]):
-        s += w[b]
-    return s / w.shape[0]
 
 
 #: per cluster, after the K cumulative weights, CONE_DATA planes of K values (:func:`cone_cdf`): the cone's axis

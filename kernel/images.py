@@ -13,9 +13,10 @@ Deposits in photons of weight, lengths in scene units, solid angles in steradian
 import math
 
 from .jit import helper
-from .cones import cone_cdf, cone_direction, cone_pdf, first_target, leaving, leaving_sides, mean_weight, ray_mean
+from .cones import cone_cdf, cone_direction, cone_pdf, first_target, leaving, leaving_sides, ray_mean
 from .importance import cluster_cdf, draw
-from .nee import END_REL, INV_4PI, NEAR, deposit, disc_point_by_solid_angle, mesh_point, seen_deposit, sensor_point
+from .nee import (END_REL, INV_4PI, NEAR, deposit, disc_point_by_solid_angle, mean_weight, mesh_point, seen_deposit,
+                  sensor_point)
 from .rays import hit_on_plane, magnitude, set_ray
 from .records import DIFFUSE_R, DIFFUSE_T, SPECULAR_R, T_DISC, T_MESH2, V_SURFACE
 from .rng import n_draws, uniform

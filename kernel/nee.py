@@ -459,17 +459,23 @@ def next_event(v, stat, cover, control, geo, mat, sens, tgt, zones, organs, phot
 
 
 @helper
+def mean_weight(w):
+    """The mean over the bands of a photon's weights ``w`` (B,)."""
+    s = 0.0
+    for b in range(w.shape[0]):
+        s += w[b]
+    return s / w.shape[0]
+
+
+@helper
 def pick_share(w, total, mode, m, organs):
     """A vertex's pick share S: its photon's mean weight over the bands (``w`` (B,)) × the larger of its
     material's diffuse reflectance and transmittance, band mean (``organs.pick_side[m]``; 1 at a lamp) × the sum
     ``total`` of the targets' importances seen from it (:func:`kernel.importance.cluster_cdf`, ∝ 1 / d²): about
     the light its next events to organs can bring them.  The deposit of a pick is ∝ S / (picks drawn), so picks
     ∝ S leave every pick about the same deposit (:data:`PICK_CAP`)."""
-    wbar = 0.0
-    for b in range(w.shape[0]):
-        wbar += w[b]
     side = organs.pick_side[m] if mode == V_SURFACE else 1.0
-    return wbar / w.shape[0] * side * total
+    return mean_weight(w) * side * total
 
 
 @helper
