@@ -146,20 +146,22 @@ def facing_triangle(vx, vy, vz, t, u, tgt, geo):
     tests in a loop that buds, 80 triangles each, make ~6 % of a 16-rose step)."""
     first, count = tgt.first[t], tgt.count[t]
     tri, cum = tgt.tri[first:first + count], tgt.tri_cdf[first:first + count]
-    share = 0.0
-    for i in range(count):
-        if _faces(vx, vy, vz, tri[i], geo):
-            share += cum[i] - (cum[np.uint64(i - 1)] if i > 0 else 0.0)
+    share, prev = 0.0, 0.0
+    for i in range(count):       # without a branch on the facing test (half of a bud's triangles face v, at
+        c = cum[i]               # random: a mispredicted branch each time): a triangle that does not face v adds
+        share += (c - prev) * _faces(vx, vy, vz, tri[i], geo)     # (its area) × 0 -- the same sum, bit for bit
+        prev = c
     if not share > 0.0:
         return -1, 0.0
-    goal, run, last = u * share, 0.0, -1
+    goal, run, last, prev = u * share, 0.0, -1, 0.0
     for i in range(count):
-        g = tri[i]
-        if _faces(vx, vy, vz, g, geo):
-            run += cum[i] - (cum[np.uint64(i - 1)] if i > 0 else 0.0)
-            last = g
-            if run >= goal:
-                break
+        g, c = tri[i], cum[i]
+        f = _faces(vx, vy, vz, g, geo)
+        run += (c - prev) * f
+        last = g if f else last
+        prev = c
+        if f & (run >= goal):
+            break
     return last, share * tgt.area[t]
 
 
