@@ -22,6 +22,7 @@ import threading
 from pathlib import Path
 
 from .errors import InputError, LpyLightError
+from .process_state import preserved_locale
 from .scene import builtin_scenes, resolve_scene  # noqa: F401  (scene lookup lives with scenes)
 
 MAX_NEE_PICKS = 4096      # shadow rays per vertex; 0 (every target) is the way to ask for more
@@ -513,7 +514,7 @@ def extern_values(sets) -> dict:
 def cmd_grow(args) -> int:
     from . import light as lightmod
     from .lpy import require_lpy
-    from .results import atomic_write, csv_text, json_text
+    from .results import CsvStream, atomic_write, json_text
 
     path = Path(args.model)
     if not path.is_file():
@@ -548,14 +549,16 @@ def cmd_grow(args) -> int:
             if value is not None:
                 setattr(model, name, lightmod._photons(value) if name == "photons" else value)
     out = Path(args.out)
-    rows, summaries = [], []
-    pictures = []
+    summaries, pictures = [], []
+    out.mkdir(parents=True, exist_ok=True)
+    organs_csv = CsvStream(out / "organs.csv", lightmod.ORGAN_COLUMNS)      # step by step: memory stays flat
 
     def on_step(step, organs):
-        rows.extend(lightmod.organ_rows(step))
+        organs_csv.write(lightmod.organ_rows(step))
         roles = [light.role for light in step.organs.values()]
         summaries.append({"step": step.step, "organs": len(step.organs), "targets": roles.count("target"),
-                          "shading_only": roles.count("shading only"), "triangles": step.triangles,
+                          "shading_only": roles.count("shading only"), "not_reached": roles.count(lightmod.NOT_REACHED),
+                          "triangles": step.triangles,
                           "photons": step.photons, "seconds": step.seconds, "tessellated": step.tessellated,
                           "reused": step.reused, **step.extra})
         if args.plot_every and organs and (step.step + 1) % args.plot_every == 0:
@@ -570,13 +573,14 @@ def cmd_grow(args) -> int:
                      step.tessellated, step.reused), file=sys.stderr, flush=True)
 
     model.on_step = on_step
-    out.mkdir(parents=True, exist_ok=True)
     partial = False
     lstring = lsys.axiom
-    with model.warnings_once() as seen:
+    derived = 0
+    with organs_csv, model.warnings_once() as seen:
         try:
             for i in range(steps):
                 lstring = lsys.derive(lstring, i, 1)
+                derived = i + 1
                 if outside and ((i + 1) % args.every == 0 or i == steps - 1):
                     model.step = i
                     model.intercept(lstring, lsys.sceneInterpretation(lstring))
@@ -586,7 +590,6 @@ def cmd_grow(args) -> int:
             logging.getLogger("lpy_light").warning(
                 "the model's LightModel was never called: call light.intercept(lstring, lscene) in EndEach, with "
                 "frameDisplay(True) in StartEach")
-    atomic_write(out / "organs.csv", csv_text(rows))
     summary = {"model": str(path), "steps": summaries, "partial": partial, "photons_per_step": model.photons,
                "precision": model.precision, "lit_from_outside": outside,
                "bands": model.chamber.band_labels, "plant_unit_m": model.scale * model.chamber.metres_per_unit,
@@ -598,10 +601,14 @@ def cmd_grow(args) -> int:
     if not args.quiet:
         for line in seen.repeated_lines():
             print("lpy-light: " + line, file=sys.stderr)
-        print("lpy-light: %d step(s) lit; results in %s: organs.csv (per organ and band: ppfd ± ppfd_std µmol m-2 s-1, "
-              "absorbed µmol s-1, par, rfr), summary.json%s" % (len(summaries), out,
-                                                                ", " + ", ".join(Path(p).name for p in summary["pictures"])
-                                                                if summary["pictures"] else ""), file=sys.stderr)
+        files = ", ".join(["summary.json"] + [Path(p).name for p in summary["pictures"]])
+        if partial:
+            print("lpy-light: interrupted after %d of %d derivation step(s), %d lit; partial results (\"partial\": "
+                  "true in summary.json) in %s: organs.csv, %s" % (derived, steps, len(summaries), out, files),
+                  file=sys.stderr)
+        else:
+            print("lpy-light: %d step(s) lit; results in %s: organs.csv (per organ and band: ppfd ± ppfd_std "
+                  "µmol m-2 s-1, absorbed µmol s-1, par, rfr), %s" % (len(summaries), out, files), file=sys.stderr)
     return 130 if partial else 0
 
 
@@ -669,17 +676,8 @@ def main(argv=None) -> int:
         raise
     saved = {sig: signal.getsignal(sig) for sig in (signal.SIGTERM, signal.SIGINT)}
     try:
-        if args.command == "scenes":
-            for name, path in builtin_scenes().items():
-                print("%-22s %s" % (name, path))
-            return 0
-        if args.command == "run":
-            return cmd_run(args)
-        if args.command == "grow":
-            return cmd_grow(args)
-        if args.command == "sweep":
-            from .sweep import cmd_sweep
-            return cmd_sweep(args, passthrough)
+        with preserved_locale():      # a command leaves the process as it found it (PlantGL sets the C locale)
+            return _command(args, passthrough)
     except LpyLightError as exc:
         print("lpy-light: error: %s" % exc, file=sys.stderr)
         _remove_stale_results(getattr(args, "out", None))
@@ -696,6 +694,21 @@ def main(argv=None) -> int:
             for sig, handler in saved.items():
                 if handler is not None:
                     signal.signal(sig, handler)
+
+
+def _command(args, passthrough) -> int:
+    """Run the parsed command; its exit status."""
+    if args.command == "scenes":
+        for name, path in builtin_scenes().items():
+            print("%-22s %s" % (name, path))
+        return 0
+    if args.command == "run":
+        return cmd_run(args)
+    if args.command == "grow":
+        return cmd_grow(args)
+    if args.command == "sweep":
+        from .sweep import cmd_sweep
+        return cmd_sweep(args, passthrough)
     return 1
 
 

@@ -38,12 +38,14 @@ from . import simulate, units
 from .errors import InputError
 from .messages import OncePerKind
 from .organs import TessellationCache, mesh_key, organ_from_mesh, plant_material
+from .process_state import preserved_locale
 from .scene import UNITS, load_scene, resolve_scene
 
 log = logging.getLogger("lpy_light")
 
 LEAF = ("FeuilleVieille_Sup", "FeuilleVieille_Inf")   # upper side, lower side (Angers optical tables)
 MODELS: list = []      # every LightModel made in this process, newest last (``lpy-light grow`` finds the model's)
+NOT_REACHED = "not reached"    # an OrganLight's role when no sample of the step reached the organ
 
 
 @dataclass
@@ -69,7 +71,8 @@ class OrganLight:
     rfr_std: float = float("nan")
     absorbed_par: float = float("nan")     # µmol s⁻¹ absorbed in the bands tiling 400-700 nm
     absorbed_par_std: float = float("nan")
-    role: str = "target"         # "target", or "shading only": the organ blocks light, its own is not estimated
+    role: str = "target"         # "target"; "shading only": the organ blocks light, its own is not estimated;
+    #                              "not reached": no sample of the step reached it (numbers NaN, the rules get None)
 
     def __getitem__(self, name):
         return getattr(self, name)
@@ -404,11 +407,12 @@ class LightModel:
           parameter ``parameter`` and returns ``(lstring, lscene)`` — return that
           from ``EndEach``.  ``lscene`` must not be None: call
           ``frameDisplay(True)`` in ``StartEach`` (see :mod:`lpy_light.lpy`).
-        * ``intercept({key: mesh or (mesh, material)})``: returns ``{key: OrganLight}``.
+        * ``intercept({key: mesh or (mesh, material)})``: returns ``{key: OrganLight}`` (None for an organ
+          no sample of the step reached, as the rules get it).
         """
-        with self.warnings_once():
+        with self.warnings_once(), preserved_locale():     # PlantGL sets the C locale and leaves it so
             if isinstance(organs, Mapping):
-                return self.run(self.organs_from_meshes(organs)).organs
+                return for_rules(self.run(self.organs_from_meshes(organs)).organs)
             from . import lpy
             return lpy.intercept(self, organs, lscene)
 
@@ -529,20 +533,48 @@ def organ_lights(kscene, result, organs, flux, flux_std, chamber, read=None) -> 
             light.absorbed_par, light.absorbed_par_std = float(ab_par[i]), float(ab_par_std[i])
         if read is not None and not read[i]:
             light = shading_only(light)
+        elif not (inc[r] > 0).any() and not (inc_std[r] > 0).any():
+            light = not_reached(light)
+            log.warning("organ %r (%s, %.3g m²): no sample of this step reached it, so its light is undefined: "
+                        "None for the rules, empty cells in organs.csv (more photons, or a precision, reach it)",
+                        organ.key, organ.module or "organ", areas[i])
         out[organ.key] = light
     return out
 
 
 def shading_only(light: OrganLight) -> OrganLight:
     """The light of an organ that is not a target: every number undefined (NaN), ``role`` says why."""
+    return _undefined(light, "shading only")
+
+
+def not_reached(light: OrganLight) -> OrganLight:
+    """The light of a target organ that no sample of the step reached (no photon, no next event): not 0 ± 0,
+    which would claim a certainty the run does not have, but every number undefined (NaN: empty cells in
+    ``organs.csv``); the rules get None (:func:`for_rules`)."""
+    return _undefined(light, NOT_REACHED)
+
+
+def _undefined(light, role):
     nan = np.full(len(light.bands), np.nan)
     return replace(light, photons=nan, photons_std=nan, ppfd=nan, ppfd_std=nan, absorbed=nan, absorbed_std=nan,
                    par=math.nan, par_std=math.nan, rfr=math.nan, rfr_std=math.nan, absorbed_par=math.nan,
-                   absorbed_par_std=math.nan, role="shading only")
+                   absorbed_par_std=math.nan, role=role)
+
+
+def for_rules(lights: dict) -> dict:
+    """``{key: OrganLight or None}``: what the growth rules read -- None for an organ no sample reached, as
+    before the organ's first step."""
+    return {key: None if light.role == NOT_REACHED else light for key, light in lights.items()}
+
+
+#: the columns of ``organs.csv``, one row per organ and band (``role``: "target", "shading only", "not reached")
+ORGAN_COLUMNS = ("step", "organ", "module", "band", "ppfd", "ppfd_std", "absorbed", "absorbed_std", "photons",
+                 "photons_std", "area_m2", "par", "par_std", "rfr", "rfr_std", "absorbed_par", "absorbed_par_std",
+                 "role")
 
 
 def organ_rows(step: StepResult) -> list:
-    """Rows of ``organs.csv``: one per organ and band."""
+    """Rows of ``organs.csv`` (:data:`ORGAN_COLUMNS`): one per organ and band."""
     rows = []
     for key, light in step.organs.items():
         for b, label in enumerate(light.bands):

@@ -23,7 +23,9 @@ lstring and several shapes may share it; ``EndEach`` must be a plain function
 and should return ``(lstring, lscene)``; in a batch ``derive()`` the scene is
 ``None`` on every step but the last unless ``frameDisplay(True)`` is called in
 ``StartEach``; PlantGL point lists have no numpy view, and converting them point
-by point is slow, so we use ``Point3Array.to_str`` (one C++ loop) when present.
+by point is slow, so we use ``Point3Array.to_str`` (one C++ loop) when present.  ``to_str`` sets the process's
+locale to ``C`` and leaves it so: :meth:`LightModel.intercept` runs inside
+:func:`lpy_light.process_state.preserved_locale`, which puts it back.
 """
 from __future__ import annotations
 
@@ -34,6 +36,7 @@ import numpy as np
 
 from .errors import LpyLightError
 from .organs import organ_from_mesh
+from .process_state import preserved_locale
 
 log = logging.getLogger("lpy_light")
 
@@ -165,8 +168,11 @@ def geometry_key(geometry):
 
 
 def _points(point_list) -> np.ndarray:
+    """(n, 3) float64 points of a PlantGL ``Point3Array``."""
     if hasattr(point_list, "to_str"):
-        return np.array(point_list.to_str("%.9g %.9g %.9g", " ").split(), dtype=np.float64).reshape(-1, 3)
+        with preserved_locale():      # to_str sets the C locale and leaves it so
+            text = point_list.to_str("%.9g %.9g %.9g", " ")
+        return np.array(text.split(), dtype=np.float64).reshape(-1, 3)
     return np.array([(p.x, p.y, p.z) for p in point_list], dtype=np.float64).reshape(-1, 3)
 
 
@@ -219,7 +225,8 @@ def intercept(model, lstring, lscene):
     model.last_step = step
     model.last_organs = organs
     if model.parameter is not None:
-        write_parameters(lstring, step.organs, model.parameter)
+        from .light import for_rules
+        write_parameters(lstring, for_rules(step.organs), model.parameter)
     if model.on_step is not None:
         model.on_step(step, organs)
     return lstring, lscene

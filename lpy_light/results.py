@@ -18,20 +18,72 @@ import numpy as np
 from . import units
 
 
+def _temporary_beside(path: Path):
+    """``(fd, name)`` of a new file in ``path``'s folder, with the usual 0666 & ~umask permissions."""
+    fd, tmp = tempfile.mkstemp(prefix="." + path.name + ".", dir=path.parent)
+    umask = os.umask(0o022)      # mkstemp makes 0600 files: give results the usual 0666 & ~umask
+    os.umask(umask)
+    os.chmod(tmp, 0o666 & ~umask)
+    return fd, tmp
+
+
 def atomic_write(path: Path, text: str):
     path = Path(path)
-    fd, tmp = tempfile.mkstemp(prefix="." + path.name + ".", dir=path.parent)
+    fd, tmp = _temporary_beside(path)
     try:
-        umask = os.umask(0o022)      # mkstemp makes 0600 files: give results the usual 0666 & ~umask
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)
-        with os.fdopen(fd, "w", newline="") as fh:
+        with os.fdopen(fd, "w", newline="", encoding="utf-8") as fh:
             fh.write(text)
         os.replace(tmp, path)
     except BaseException:
         if os.path.exists(tmp):
             os.unlink(tmp)
         raise
+
+
+class CsvStream:
+    """A csv written row block by row block, each flushed to disk, and renamed into place at :meth:`close`:
+    a long growth run holds one step's rows in memory, not all of them, and a reader never sees a half-written
+    ``path`` (until then the rows are in a hidden ``.NAME.*`` file beside it).
+
+    ``columns``: the header, written before the first rows (or alone, if no row ever comes).  Cells as
+    :func:`csv_text` writes them (an undefined number is an empty cell).  Use as a context manager: leaving the
+    block by an exception removes the temporary file and leaves ``path`` as it was.
+    """
+
+    def __init__(self, path, columns):
+        self.path = Path(path)
+        self.columns = list(columns)
+        self.rows = 0
+        fd, self._tmp = _temporary_beside(self.path)
+        self._fh = os.fdopen(fd, "w", newline="", encoding="utf-8")
+        self._writer = csv.DictWriter(self._fh, fieldnames=self.columns, lineterminator="\n")
+        self._writer.writeheader()
+
+    def write(self, rows):
+        """Append ``rows`` (dicts keyed by ``columns``) and flush them to disk."""
+        for row in rows:
+            self._writer.writerow({k: _cell(v) for k, v in row.items()})
+        self.rows += len(rows)
+        self._fh.flush()
+
+    def close(self):
+        """Rename the rows written into place at ``path``."""
+        self._fh.close()
+        os.replace(self._tmp, self.path)
+
+    def discard(self):
+        self._fh.close()
+        if os.path.exists(self._tmp):
+            os.unlink(self._tmp)
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, kind, value, tb):
+        if kind is None:
+            self.close()
+        else:
+            self.discard()
 
 
 #: rounding allowed per photon in the energy closure's residual (photons): far below any physical effect

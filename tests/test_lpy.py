@@ -26,7 +26,7 @@ SEED_ORGANS = ["--organs", "Leaf=FeuilleVieille_Sup/FeuilleVieille_Inf", "--orga
 
 def _grow(*args):
     return subprocess.run([sys.executable, "-m", "lpy_light", "grow", *map(str, args)], capture_output=True,
-                          encoding="utf-8")      # not the locale's: PlantGL sets an ASCII one in this process
+                          encoding="utf-8")
 
 
 def _rows(path, band="655-665"):
@@ -86,6 +86,61 @@ def test_rose_grows_with_its_light_and_pictures(tmp_path):
     assert len(summary["steps"]) == 8 and all("convert_seconds" in s for s in summary["steps"][1:])
     warnings = [line for line in p.stderr.splitlines() if ": warning: " in line]
     assert len(warnings) == len(set(w.split(":")[2][:40] for w in warnings))
+
+
+@pytest.fixture
+def utf8_locale():
+    """The process in a UTF-8 locale (a modeller's desktop), put back as it was after the test."""
+    import locale
+    saved = locale.setlocale(locale.LC_ALL)
+    try:
+        locale.setlocale(locale.LC_ALL, "C.UTF-8")
+    except locale.Error:
+        pytest.skip("no C.UTF-8 locale on this machine")
+    yield
+    locale.setlocale(locale.LC_ALL, saved)
+
+
+@pytest.mark.lpy
+@lpy
+def test_lit_steps_leave_the_locale_and_utf8_files_as_they_were(utf8_locale, tmp_path):
+    """Issue 47: PlantGL's ``Point3Array.to_str`` (how a tessellation's points are read) sets the C locale and
+    never restores it; after a lit step the default encoding was ASCII and the L-Py IDE saved a model holding µ
+    as an empty file.  After lit steps in the real L-Py, the locale is the one before, and a UTF-8 file is
+    written and read back through ``open()`` with the default encoding."""
+    import locale
+    before = locale.setlocale(locale.LC_ALL)
+    lstring, _ = _derive(ROSE, 3, PHOTONS=20_000, PRECISION=0)
+    assert any(m.name == "Leaf" and m.light is not None for m in lstring)      # the steps were lit
+    assert locale.setlocale(locale.LC_ALL) == before
+    assert locale.getpreferredencoding(False) == "UTF-8"
+    text = ROSE.read_text(encoding="utf-8")
+    assert "µ" in text
+    with open(tmp_path / "rose.lpy", "w") as fh:        # as the IDE saves: the locale's encoding
+        fh.write(text)
+    assert open(tmp_path / "rose.lpy").read() == text
+
+
+@pytest.mark.lpy
+@lpy
+def test_plantgl_calls_that_set_the_locale_are_guarded(utf8_locale, tmp_path):
+    """Every PlantGL call found to set the process's locale (``Point2/3/4Array.to_str``, the ``.geom``
+    reader): each does (so the guard is needed), and inside :func:`preserved_locale` the locale comes back."""
+    import locale
+    import openalea.plantgl.all as pgl
+    from lpy_light.process_state import preserved_locale
+    (tmp_path / "s.geom").write_text("Sphere s { Radius 1.5 }\n")
+    calls = {"Point2Array.to_str": lambda: pgl.Point2Array([(0, 1)]).to_str(),
+             "Point3Array.to_str": lambda: pgl.Point3Array([(0, 1, 2)]).to_str(),
+             "Point4Array.to_str": lambda: pgl.Point4Array([(0, 1, 2, 3)]).to_str(),
+             "Scene(.geom)": lambda: pgl.Scene(str(tmp_path / "s.geom"))}
+    for name, call in calls.items():
+        call()
+        assert locale.setlocale(locale.LC_ALL) == "C", name            # PlantGL's side effect, still there
+        locale.setlocale(locale.LC_ALL, "C.UTF-8")
+        with preserved_locale():
+            call()
+        assert locale.setlocale(locale.LC_ALL) == "C.UTF-8", name
 
 
 @pytest.mark.lpy

@@ -253,7 +253,7 @@ def test_par_sigma_includes_the_bands_covariance(tmp_path, with_sensors):
 
 
 def test_a_plant_where_it_cannot_be_is_named_once(black_room, caplog):
-    """An organ 100 m above the chamber (a plant drawn in mm and declared in m, say) reads 0 ± 0: it is named,
+    """An organ 100 m above the chamber (a plant drawn in mm and declared in m, say) gets no light: it is named,
     with its bounding box and the chamber's in the plant's unit, once per run, and flagged in the step."""
     model = _model(black_room, photons=2_000)
     far = {1: disc_mesh(30, z=500), 2: disc_mesh(30, z=100_000)}
@@ -264,9 +264,36 @@ def test_a_plant_where_it_cannot_be_is_named_once(black_room, caplog):
     assert len(lines) == 1 and "keys 2" in lines[0] and "1e+05" in lines[0] and "1100" in lines[0], lines
     assert first.extra["outside_chamber"] == [2] == second.extra["outside_chamber"]
     assert model.messages.counts[next(k for k in model.messages.counts if "outside the chamber" in k)] == 2
-    assert first.organs[2].ppfd[0] == 0 and first.organs[1].ppfd[0] > 0
+    assert first.organs[2].role == "not reached" and first.organs[1].ppfd[0] > 0
     inside = model.run(model.organs_from_meshes({1: disc_mesh(30, z=500)}, module="Leaf"))
     assert "outside_chamber" not in inside.extra
+
+
+def test_an_organ_no_sample_reached_is_undefined_not_zero_plus_minus_zero(black_room, caplog, tmp_path):
+    """A leaf in a closed box that no photon enters has no estimate: not PAR 0 ± 0 (a σ of 0 claims a certainty
+    the run does not have) but None for the rules, empty cells in organs.csv, and a warning counted per organ.
+    The leaf beside it keeps its numbers."""
+    import csv
+    from lpy_light.light import organ_rows
+    from lpy_light.results import csv_text
+    model = _model(black_room, photons=3_000)
+    lit = disc_mesh(30, z=500)
+    hidden = trimesh.creation.box(extents=(20, 20, 20)).apply_translation((300, 300, 100))   # closed: a cave
+    inside = disc_mesh(3, z=100).apply_translation((300, 300, 0))
+    organs = {1: lit, 2: (hidden, BLACK), 3: inside}
+    with caplog.at_level("WARNING", logger="lpy_light"):
+        lights = model.intercept(organs)
+    assert lights[3] is None and lights[1] is not None and lights[1].ppfd_std[0] > 0
+    assert lights[2] is not None                        # the box's outside is lit
+    warned = [r.getMessage() for r in caplog.records if "no sample of this step reached it" in r.getMessage()]
+    assert len(warned) == 1 and "organ 3" in warned[0]
+    assert model.messages.counts[next(k for k in model.messages.counts if "no sample" in k)] == 1
+    step = model.run(model.organs_from_meshes(organs))
+    assert step.organs[3].role == "not reached" and math.isnan(step.organs[3].ppfd[0])
+    (tmp_path / "organs.csv").write_text(csv_text(organ_rows(step)))
+    rows = [r for r in csv.DictReader(open(tmp_path / "organs.csv")) if r["organ"] == "3"]
+    assert rows and all(r["ppfd"] == "" and r["ppfd_std"] == "" and r["role"] == "not reached" for r in rows)
+    assert model.messages.counts[next(k for k in model.messages.counts if "no sample" in k)] == 2
 
 
 @pytest.mark.parametrize("photons", [-5, 0, 2.5, "many", True])
