@@ -41,6 +41,14 @@ def test_grow_without_lpy_says_how_to_get_it(tmp_path):
     assert "conda" in p.stderr and len(p.stderr.strip().splitlines()) == 1
 
 
+def test_our_models_survive_a_save_in_the_lpy_ide():
+    """The L-Py IDE takes the editor's text through Latin-1 (``lpycodeeditor.getCode``: other characters become
+    '?' when a model is saved): the models we ship hold no character outside it."""
+    for path in LSYSTEMS.glob("*.lpy"):
+        text = path.read_text(encoding="utf-8")
+        assert text.encode("latin-1", "replace").decode("latin-1") == text, path.name
+
+
 def test_organs_csv_and_picture_from_meshes(black_room, tmp_path):  # noqa: F811
     model = _model(black_room, photons=5_000)
     step = model.run(model.organs_from_meshes({1: disc_mesh(30, z=500), 2: square_mesh(5.0, z=450)},
