@@ -49,11 +49,14 @@ def main(argv=None) -> int:
     code = child.wait()
     steps = sorted(per_step)
     later = [per_step[s] for s in steps if s >= args.start]
-    if later:
-        print("%d lit steps in %.0f s; RSS at step %d: %.1f MB, at the last (%d): %.1f MB, most after step %d: "
-              "%.1f MB -> grew %.1f MB from step %d to the end"
-              % (len(steps), time.perf_counter() - t0, steps[0], per_step[steps[0]], steps[-1], per_step[steps[-1]],
-                 args.start, max(later), max(later) - later[0], args.start))
+    if len(later) >= 2:
+        xs = [s for s in steps if s >= args.start]
+        mx, my = sum(xs) / len(xs), sum(later) / len(later)
+        slope = sum((x - mx) * (y - my) for x, y in zip(xs, later)) / sum((x - mx) ** 2 for x in xs)
+        print("%d lit steps in %.0f s; RSS at step %d: %.1f MB, at step %d: %.1f MB, at the last (%d): %.1f MB; "
+              "from step %d on: most %.1f MB, least %.1f MB, the last minus the first %+.1f MB, trend %+.3f MB a step"
+              % (len(steps), time.perf_counter() - t0, steps[0], per_step[steps[0]], xs[0], later[0], steps[-1],
+                 per_step[steps[-1]], args.start, max(later), min(later), later[-1] - later[0], slope))
     return code
 
 

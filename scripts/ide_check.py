@@ -8,7 +8,8 @@ Needs the bundle with the IDE (``bash ../shared/lpy/install.sh --ide .venv-lpy``
 
 It drives the IDE's own window (``openalea.lpy.gui.lpystudio.LPyWindow``): its Run and Step actions (what the
 toolbar buttons trigger), its ``openfile`` (File > Open once a name is chosen), typing into its code editor and
-Ctrl+S as key events.  A dialog the IDE opens (an error) is recorded, pictured (``dialogN.png``) and closed.
+Ctrl+S as key events.  A dialog the IDE opens (an error) is recorded, pictured (the first: ``dialog.png``) and
+closed.
 Prints what it saw and writes ``ide.png``, a screenshot of the window after the save; exit status 0 when the saved
 file is whole and the locale is the one before.
 
@@ -68,9 +69,13 @@ def main() -> int:
     def close_dialogs():
         w = qapp.activeModalWidget()
         if w is not None:
-            w.grab().save(str(out / ("dialog%d.png" % len(dialogs))))
+            if not dialogs:
+                w.grab().save(str(out / "dialog.png"))
             dialogs.append("%s %r: %s" % (type(w).__name__, w.windowTitle(), getattr(w, "text", lambda: "")()))
             w.close()
+            if len(dialogs) >= 20:            # the IDE reopens it: it will not get past this
+                print("dialogs: 20 x %s\nIDE check: FAILED" % dialogs[0])
+                os._exit(1)
     timer = QTimer()
     timer.timeout.connect(close_dialogs)
     timer.start(500)

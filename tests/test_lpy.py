@@ -152,6 +152,58 @@ def test_plantgl_calls_that_set_the_locale_are_guarded(utf8_locale, tmp_path):
 
 
 @pytest.mark.lpy
+@pytest.mark.slow
+@lpy
+def test_the_locale_after_30_lit_steps_of_each_model_is_the_one_before(utf8_locale, tmp_path):
+    """Issue 47's criterion, on every model in ``lsystems/``: 30 lit steps in the real L-Py (the models that call
+    us from their ``EndEach``, and rose-simple4 lit from outside at every step by ``lpy-light grow``)."""
+    import locale
+    from openalea.lpy import Lsystem
+    from lpy_light.cli import main
+    before = locale.setlocale(locale.LC_ALL)
+    for model, externs in ((ROSE, {"STEPS": 30, "PHOTONS": 50_000, "PRECISION": 0}),
+                           (SEED_ROSE_LIT, {"PHOTONS": 50_000})):
+        lsys = Lsystem(str(model), externs)
+        lstring = lsys.derive(lsys.axiom, 0, 30)
+        assert any(m.name == "Leaf" and m.light is not None for m in lstring) if model == ROSE else True
+        assert locale.setlocale(locale.LC_ALL) == before, model.name
+    code = main(["grow", str(SEED_ROSE), "--steps", "30", "--photons", "20000", "--at", "1280,860,980",
+                 "--targets", "Leaf,Bud", *SEED_ORGANS, "--quiet", "--out", str(tmp_path / "seed")])
+    assert code == 0 and len(json.loads((tmp_path / "seed" / "summary.json").read_text())["steps"]) == 30
+    assert locale.setlocale(locale.LC_ALL) == before and locale.getpreferredencoding(False) == "UTF-8"
+
+
+@pytest.mark.lpy
+@lpy
+def test_ctrl_c_during_grow_says_so_in_its_last_line(tmp_path):
+    """Issue 47: an interrupted ``grow`` exits 130 with consistent partial files, and its last line says it was
+    stopped, after how many steps, and where the partial results are."""
+    import signal
+    import time
+    out = tmp_path / "out"
+    child = subprocess.Popen([sys.executable, "-m", "lpy_light", "grow", str(ROSE), "--steps", "30", "--photons",
+                              "100000", "--precision", "0.5", "--out", str(out)], stderr=subprocess.PIPE,
+                             encoding="utf-8")
+    lines = []
+    for line in child.stderr:
+        lines.append(line)
+        if line.lstrip().startswith("step 2:"):
+            time.sleep(0.3)
+            child.send_signal(signal.SIGINT)
+            break
+    lines += child.stderr.readlines()
+    assert child.wait(timeout=120) == 130, "".join(lines)
+    last = lines[-1]
+    assert last.startswith("lpy-light: interrupted after ") and "of 30 derivation step(s)" in last, last
+    assert str(out) in last and "partial" in last
+    summary = json.loads((out / "summary.json").read_text())
+    lit = len(summary["steps"])
+    assert summary["partial"] is True and 3 <= lit < 30 and ("%d lit" % lit) in last
+    assert (sorted({r["step"] for r in _rows(out / "organs.csv")}, key=int)
+            == [str(s["step"]) for s in summary["steps"] if s["organs"]])       # the csv has every step lit
+
+
+@pytest.mark.lpy
 @lpy
 def test_endeach_writes_parameters_the_next_step_reads():
     lstring, _ = _derive(ROSE, 5, PHOTONS=50_000, PRECISION=0)
