@@ -42,8 +42,8 @@ def rose_organs(steps, grown=False):
     lstring = lsys.derive()
     scene = lsys.sceneInterpretation(lstring)
     model = lsys.context()["light"]
-    meshes, modules = adapter.shapes_by_module(lstring, scene, set(model.organ_materials), model.cache)
-    return adapter.organs_from_meshes_by_id(meshes, modules, model)
+    materials = {name: model._materials_of(spec) for name, spec in model.organ_materials.items()}
+    return adapter.plant_organs(lstring, scene, materials, model.scale, model.position, model.cache)
 
 
 def save(path, organs):

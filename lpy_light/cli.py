@@ -15,7 +15,6 @@ import argparse
 import contextlib
 import logging
 import math
-import os
 import signal
 import sys
 import threading
@@ -23,37 +22,12 @@ from pathlib import Path
 
 from .errors import InputError, LpyLightError
 from .process_state import preserved_locale
+from .results import check_out_dir, check_outputs
 from .scene import builtin_scenes, resolve_scene  # noqa: F401  (scene lookup lives with scenes)
 
 MAX_NEE_PICKS = 4096      # shadow rays per vertex; 0 (every target) is the way to ask for more
 DEFAULT_PRECISION = 0.01  # `run` without --photons/--precision: every sensor and band to 1 % (nee)
 DEFAULT_CAP = 100_000_000  # ... but no more photons than this (a sensor in the dark would hold the run)
-
-
-def check_out_dir(out):
-    """Refuse an output folder that cannot be written before any photon is traced."""
-    if not str(out).strip():
-        raise InputError("--out must name a folder (got an empty string)")
-    out = Path(out)
-    if out.exists() and not out.is_dir():
-        raise InputError("--out must be a folder; this is a file", out)
-    parent = out
-    while not parent.exists():
-        parent = parent.parent
-    if not parent.is_dir() or not os.access(parent, os.W_OK | os.X_OK):
-        raise InputError("--out: cannot write in %s" % parent, out)
-
-
-def check_outputs(out, inputs):
-    """Refuse a run whose results would overwrite one of its own input files (``--out`` = the scene's folder
-    with a sensor list named ``sensors.csv``, say)."""
-    from .results import RESULT_FILES
-    read = {Path(p).resolve() for p in inputs}
-    for name in RESULT_FILES:
-        target = (Path(out) / name).resolve()
-        if target in read:
-            raise InputError("--out would overwrite the input file %s with this run's %s: choose another folder"
-                             % (target, name), out)
 
 
 def _count(text: str) -> int:
@@ -696,6 +670,31 @@ def main(argv=None) -> int:
                     signal.signal(sig, handler)
 
 
+def cmd_sweep(args, passthrough) -> int:
+    """``lpy-light sweep``: see :mod:`lpy_light.sweep`."""
+    from . import sweep
+
+    check_out_dir(args.out)
+    if args.workers is not None and not 1 <= args.workers <= 1024:
+        raise InputError("--workers must be in 1..1024")
+    if args.workers is not None and args.dask is not None and not args.dask.startswith("local"):
+        raise InputError("--workers is for sweeps on this machine; a cluster's workers are its own")
+    tasks = sweep.tasks_for(args.inputs, args.set, passthrough)
+    for t in tasks[:1] + tasks[-1:]:      # parsed as each run will parse it: argparse's one-line error, exit 2
+        _parser().parse_args(t.argv + ["--out", "OUT"])
+    report = None if args.quiet else (lambda line: print("lpy-light: sweep: %s" % line, file=sys.stderr, flush=True))
+    previous = signal.signal(signal.SIGTERM, signal.default_int_handler)     # SIGTERM stops it as Ctrl-C does
+    try:
+        if args.dask is None:
+            return sweep.run_sweep(tasks, args.out, workers=args.workers, report=report)
+        from . import cluster
+        address = "local:%d" % args.workers if args.workers and args.dask == "local" else args.dask
+        with cluster.dask_client(address, threads=1 if cluster.local_workers(address) else None) as client:
+            return sweep.run_sweep(tasks, args.out, client=client, report=report)
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
 def _command(args, passthrough) -> int:
     """Run the parsed command; its exit status."""
     if args.command == "scenes":
@@ -707,7 +706,6 @@ def _command(args, passthrough) -> int:
     if args.command == "grow":
         return cmd_grow(args)
     if args.command == "sweep":
-        from .sweep import cmd_sweep
         return cmd_sweep(args, passthrough)
     return 1
 

@@ -413,8 +413,25 @@ class LightModel:
         with self.warnings_once(), preserved_locale():     # PlantGL sets the C locale and leaves it so
             if isinstance(organs, Mapping):
                 return for_rules(self.run(self.organs_from_meshes(organs)).organs)
-            from . import lpy
-            return lpy.intercept(self, organs, lscene)
+            return self._intercept_lstring(organs, lscene)
+
+    def _intercept_lstring(self, lstring, lscene):
+        """One L-Py step: the scene's organ shapes → organs → a run → each organ's light in its module."""
+        from . import lpy
+        hits, misses = self.cache.hits, self.cache.misses
+        t0 = time.perf_counter()
+        materials = {name: self._materials_of(spec) for name, spec in self.organ_materials.items()}
+        organs = lpy.plant_organs(lstring, lscene, materials, self.scale, self.position, self.cache)
+        convert = time.perf_counter() - t0
+        step = self.run(organs)
+        step.reused, step.tessellated = self.cache.hits - hits, self.cache.misses - misses
+        step.extra["convert_seconds"] = convert
+        self.last_step, self.last_organs = step, organs
+        if self.parameter is not None:
+            lpy.write_parameters(lstring, for_rules(step.organs), self.parameter)
+        if self.on_step is not None:
+            self.on_step(step, organs)
+        return lstring, lscene
 
 
 def _photons(n) -> int:

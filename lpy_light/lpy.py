@@ -1,4 +1,7 @@
-"""The thin L-Py / PlantGL layer: lstring + PlantGL scene → organs → module parameters.
+"""The thin L-Py / PlantGL layer: an lstring and its PlantGL scene → organs; each organ's light → its module.
+
+:meth:`lpy_light.light.LightModel.intercept` owns the step (it runs the light model); this module only converts
+(:func:`plant_organs`) and writes back (:func:`write_parameters`), and knows nothing of the light model.
 
 L-Py and PlantGL come from conda only (``environment.yml``); they are imported
 lazily, inside the functions that need them.  The logic that does not need
@@ -30,7 +33,6 @@ locale to ``C`` and leaves it so: :meth:`LightModel.intercept` runs inside
 from __future__ import annotations
 
 import logging
-import time
 
 import numpy as np
 
@@ -62,12 +64,13 @@ def require_plantgl():
 
 
 # -- plain functions (no L-Py needed) --------------------------------------------------------
-def organs_from_meshes_by_id(meshes_by_id: dict, module_names: dict, model) -> list:
-    """Organs from ``{id: [(vertices, faces), ...]}`` (several shapes per module are merged).
+def organs_from_meshes_by_id(meshes_by_id: dict, module_names: dict, materials_of, scale: float,
+                             position) -> list:
+    """Organs (chamber units) from ``{id: [(vertices, faces), ...]}`` in the plant's unit (a module's several
+    shapes are merged into one organ).
 
-    ``module_names`` maps id → module name; ``model`` (a
-    :class:`~lpy_light.light.LightModel`) gives each module's material, the
-    plant unit and the position.
+    ``module_names`` maps id → module name; ``materials_of(module name)`` gives the module's ``(front, back)``
+    material names; ``scale`` (chamber units per plant unit) and ``position`` ((3,) chamber units) place the plant.
     """
     organs = []
     for key in sorted(meshes_by_id):
@@ -78,9 +81,8 @@ def organs_from_meshes_by_id(meshes_by_id: dict, module_names: dict, model) -> l
             vertices.append(np.asarray(v, dtype=np.float64))
             faces.append(np.asarray(f, dtype=np.int64) + base)
             base += len(v)
-        front, back = model._materials_of(model.organ_materials[name])
-        organs.append(organ_from_mesh(key, (np.concatenate(vertices), np.concatenate(faces)), (front, back), name,
-                                      model.scale, model.position))
+        organs.append(organ_from_mesh(key, (np.concatenate(vertices), np.concatenate(faces)), materials_of(name),
+                                      name, scale, position))
     return organs
 
 
@@ -208,25 +210,12 @@ def shapes_by_module(lstring, lscene, names, cache):
     return meshes, modules
 
 
-def intercept(model, lstring, lscene):
-    """The body of :meth:`LightModel.intercept` for L-Py: see there."""
+def plant_organs(lstring, lscene, materials_of, scale, position, cache) -> list:
+    """The organs of an L-Py step: the shapes of the modules ``materials_of`` knows (a mapping module name →
+    ``(front, back)``), tessellated (``cache``: by geometry, across steps) and placed in the chamber."""
     if lscene is None:
         raise LpyLightError("intercept() got no scene (lscene is None): L-Py builds it only on the last step of a "
                              "derive() unless the model calls frameDisplay(True) in StartEach — add "
                              "'def StartEach(): frameDisplay(True)' to the .lpy file")
-    hits, misses = model.cache.hits, model.cache.misses
-    t0 = time.perf_counter()
-    meshes, modules = shapes_by_module(lstring, lscene, set(model.organ_materials), model.cache)
-    organs = organs_from_meshes_by_id(meshes, modules, model)
-    convert = time.perf_counter() - t0
-    step = model.run(organs)
-    step.reused, step.tessellated = model.cache.hits - hits, model.cache.misses - misses
-    step.extra["convert_seconds"] = convert
-    model.last_step = step
-    model.last_organs = organs
-    if model.parameter is not None:
-        from .light import for_rules
-        write_parameters(lstring, for_rules(step.organs), model.parameter)
-    if model.on_step is not None:
-        model.on_step(step, organs)
-    return lstring, lscene
+    meshes, modules = shapes_by_module(lstring, lscene, set(materials_of), cache)
+    return organs_from_meshes_by_id(meshes, modules, materials_of.__getitem__, scale, position)

@@ -16,6 +16,32 @@ from pathlib import Path
 import numpy as np
 
 from . import units
+from .errors import InputError
+
+
+def check_out_dir(out):
+    """Refuse an output folder that cannot be written before any photon is traced."""
+    if not str(out).strip():
+        raise InputError("--out must name a folder (got an empty string)")
+    out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise InputError("--out must be a folder; this is a file", out)
+    parent = out
+    while not parent.exists():
+        parent = parent.parent
+    if not parent.is_dir() or not os.access(parent, os.W_OK | os.X_OK):
+        raise InputError("--out: cannot write in %s" % parent, out)
+
+
+def check_outputs(out, inputs):
+    """Refuse a run whose results would overwrite one of its own input files (``--out`` = the scene's folder
+    with a sensor list named ``sensors.csv``, say)."""
+    read = {Path(p).resolve() for p in inputs}
+    for name in RESULT_FILES:
+        target = (Path(out) / name).resolve()
+        if target in read:
+            raise InputError("--out would overwrite the input file %s with this run's %s: choose another folder"
+                             % (target, name), out)
 
 
 def _temporary_beside(path: Path):

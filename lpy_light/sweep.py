@@ -46,6 +46,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from .errors import InputError
+from .scene import resolve_scene
 
 #: how often a running task checks whether the sweep was stopped (s)
 POLL = 0.5
@@ -129,8 +130,6 @@ def tasks_for(inputs, sets, passthrough=(), threads: int = 1) -> list[Task]:
     names), not both; ``passthrough``: options given to every run (``--steps 30``); ``threads``:
     threads per run unless ``passthrough`` says ``--threads``.
     """
-    from .cli import resolve_scene
-
     kinds = {_kind(i) for i in inputs}
     if len(kinds) != 1:
         raise InputError("a sweep grows .lpy models or runs scenes, not both: %s" % " ".join(inputs))
@@ -174,12 +173,6 @@ def tasks_for(inputs, sets, passthrough=(), threads: int = 1) -> list[Task]:
     return tasks
 
 
-def check_argv(task: Task):
-    """Parse a task's command line as the run will (argparse's one-line error and exit 2 if it cannot)."""
-    from .cli import _parser
-    _parser().parse_args(task.argv + ["--out", "OUT"])
-
-
 # ------------------------------------------------------------------------------------------
 # One task, wherever it runs
 def _child():
@@ -190,8 +183,8 @@ def _child():
         ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGKILL)      # PR_SET_PDEATHSIG
     if parent and os.getppid() != parent:          # the parent died before prctl took effect
         sys.exit(137)
-    from .cli import main
-    sys.exit(main(sys.argv[1:]))
+    import runpy
+    runpy.run_module("lpy_light", run_name="__main__")      # lpy-light ARGV (sys.argv[1:])
 
 
 def run_task(argv, cancelled=None) -> dict:
@@ -420,29 +413,3 @@ def _record(out: Path, task: Task, outcome: dict):
         errors = [line for line in outcome["stderr"] if "error" in line.lower()] or outcome["stderr"]
         task.status = "interrupted" if code in (130, -signal.SIGTERM) else "failed"
         task.message = " ".join(" | ".join(errors[-ERROR_LINES:]).split()) or "exit status %d" % code
-
-
-# ------------------------------------------------------------------------------------------
-def cmd_sweep(args, passthrough) -> int:
-    """``lpy-light sweep``: see the module's docstring."""
-    from .cli import check_out_dir
-
-    check_out_dir(args.out)
-    if args.workers is not None and not 1 <= args.workers <= 1024:
-        raise InputError("--workers must be in 1..1024")
-    if args.workers is not None and args.dask is not None and not args.dask.startswith("local"):
-        raise InputError("--workers is for sweeps on this machine; a cluster's workers are its own")
-    tasks = tasks_for(args.inputs, args.set, passthrough)
-    for t in tasks[:1] + tasks[-1:]:
-        check_argv(t)
-    report = None if args.quiet else (lambda line: print("lpy-light: sweep: %s" % line, file=sys.stderr, flush=True))
-    previous = signal.signal(signal.SIGTERM, signal.default_int_handler)     # SIGTERM stops it as Ctrl-C does
-    try:
-        if args.dask is None:
-            return run_sweep(tasks, args.out, workers=args.workers, report=report)
-        from . import cluster
-        address = "local:%d" % args.workers if args.workers and args.dask == "local" else args.dask
-        with cluster.dask_client(address, threads=1 if cluster.local_workers(address) else None) as client:
-            return run_sweep(tasks, args.out, client=client, report=report)
-    finally:
-        signal.signal(signal.SIGTERM, previous)

@@ -25,6 +25,13 @@ def _kernel_name():
 
 
 @pytest.mark.parametrize("path", NOTEBOOKS, ids=[p.name for p in NOTEBOOKS])
+def test_notebook_is_stored_without_outputs(path):
+    """The test runs it: what the repository stores is the code, not a run's figures (nothing stale to read)."""
+    nb = nbformat.read(path, as_version=4)
+    assert not [i for i, c in enumerate(nb.cells) if c.cell_type == "code" and (c.get("outputs") or c.execution_count)]
+
+
+@pytest.mark.parametrize("path", NOTEBOOKS, ids=[p.name for p in NOTEBOOKS])
 def test_notebook_runs(path, tmp_path, monkeypatch):
     name, _ = _kernel_name()
     # the kernel must import the lpy_light under test: jupyter_client starts a kernelspec's "python"

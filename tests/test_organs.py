@@ -187,7 +187,9 @@ def test_results_land_in_module_parameters(black_room, caplog):
     meshes = {1: [(disc_mesh(30, z=500).vertices, disc_mesh(30, z=500).faces)], 2: [(square_mesh(2.0, 450).vertices,
                                                                                     square_mesh(2.0, 450).faces)]}
     model.organ_materials["Bud"] = BLACK
-    organs = lpy.organs_from_meshes_by_id(meshes, {1: "Leaf", 2: "Bud"}, model)
+    organs = lpy.organs_from_meshes_by_id(meshes, {1: "Leaf", 2: "Bud"},
+                                          lambda name: model._materials_of(model.organ_materials[name]),
+                                          model.scale, model.position)
     step = model.run(organs)
     with caplog.at_level("WARNING", logger="lpy_light"):
         written = lpy.write_parameters(lstring, step.organs, "light")

@@ -1,0 +1,80 @@
+"""The package's modules import one way: no cycle, even through imports inside functions (issue 44), and each
+module imports alone in a fresh interpreter."""
+import ast
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+PACKAGE = Path(__file__).resolve().parents[1] / "lpy_light"
+MODULES = sorted(p for p in PACKAGE.rglob("*.py") if p.name != "__main__.py")
+
+
+def _name(path: Path) -> str:
+    parts = path.relative_to(PACKAGE.parent).with_suffix("").parts
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def imports_of(path: Path) -> set:
+    """The package's modules that ``path`` imports, at its top or inside its functions (relative imports)."""
+    here = _name(path).split(".")
+    if path.name != "__init__.py":
+        here = here[:-1]
+    names = {_name(p) for p in MODULES}
+    out = set()
+    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+        if isinstance(node, ast.ImportFrom) and node.level:
+            base = here[:len(here) - node.level + 1]
+            target = ".".join(base + ([node.module] if node.module else []))
+            candidates = [target] + ([target + "." + a.name for a in node.names])
+            out.update(c for c in candidates if c in names)
+    out.discard(_name(path))
+    return out
+
+
+def cycles(graph: dict) -> list:
+    """The strongly connected components of more than one module (Tarjan)."""
+    index, low, stack, on, found, counter = {}, {}, [], set(), [], [0]
+
+    def visit(v):
+        index[v] = low[v] = counter[0]
+        counter[0] += 1
+        stack.append(v)
+        on.add(v)
+        for w in graph.get(v, ()):
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            comp = []
+            while True:
+                w = stack.pop()
+                on.discard(w)
+                comp.append(w)
+                if w == v:
+                    break
+            if len(comp) > 1:
+                found.append(sorted(comp))
+
+    for v in sorted(graph):
+        if v not in index:
+            visit(v)
+    return found
+
+
+def test_the_cycle_finder_finds_a_cycle():
+    assert cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
+
+
+def test_no_import_cycle_in_the_package():
+    graph = {_name(p): {m for m in imports_of(p) if m != "lpy_light"} for p in MODULES}
+    assert cycles(graph) == []
+
+
+@pytest.mark.parametrize("module", [_name(p) for p in MODULES])
+def test_each_module_imports_alone(module):
+    code = subprocess.run([sys.executable, "-c", "import %s" % module], capture_output=True, text=True)
+    assert code.returncode == 0, code.stderr
