@@ -57,20 +57,20 @@ def main():
                                                                                           100 * share), flush=True)
     default = ks.targets
     for radius in args.radii:
-        ks.targets = default._replace(near2=np.maximum(default.near2, radius * radius))
+        ks.replace_targets(near2=np.maximum(default.near2, radius * radius))
         rel, sec = measure(ks, n, threads=args.threads)
         print(line("exclusion radius %g mm" % radius, rel, sec, y), flush=True)
-    ks.targets = default
+    ks.replace_targets(**default._asdict())
     disc_radius = np.where(default.kind == 0, ks.sens.radius[default.ref], 0.0)
     for factor in args.near:
         start, near, r2 = near_discs(ks.tri_verts, default.center, disc_radius, factor)
-        ks.targets = default._replace(near_start=start, near_list=near, near_r2=r2)
+        ks.replace_targets(near_start=start, near_list=near, near_r2=r2)
         rel, sec = measure(ks, n, threads=args.threads)
         print(line("near discs at %g·a·√n" % factor, rel, sec, y), flush=True)
-    ks.targets = default
+    ks.replace_targets(**default._asdict())
     for k in args.images:
         ks = simulate.KernelScene(chamber, estimator="nee")
-        ks.nee_images = k
+        ks.configure(images=k)
         ks.prune_next_events(threads=args.threads)
         rel, sec = measure(ks, n, threads=args.threads)
         print(line("%g mirror events per vertex" % k, rel, sec, y), flush=True)

@@ -178,9 +178,9 @@ def main():
     if args.images is not None:
         model.mirror_events = args.images
     if args.cones is not None:
-        model.kscene.nee_cones = args.cones
+        model.kscene.configure(cones=args.cones)
     if args.local is not None:
-        model.kscene.nee_local = args.local
+        model.kscene.configure(local=args.local)
     print("chamber + normalisation: %.2f s (once)" % (time.perf_counter() - t0))
     print("%4s %7s %9s %8s %9s %9s %9s %10s %10s %10s %10s" % ("step", "organs", "triangles", "step s", "CPU s",
                                                                  "convert s", "trace s", "leaf σ med", "leaf σ p90",

@@ -83,12 +83,12 @@ def sensors_check(model, photons, threads, seed):
     """Our 240 sensors with the plant in place (next events on), against the seed's earlier run: a
     :class:`Comparison` per band.  Checks that a photon emitted means the same in both engines, in both bands."""
     ks = model.kscene
-    ks.nee_sensors = True
+    ks.configure(sensors=True)
     ks.retarget()
     try:
         result = simulate.run(ks, photons, seed=seed + 104729, threads=threads)
     finally:
-        ks.nee_sensors = False
+        ks.configure(sensors=False)
         ks.retarget()
     ours, std = result.sensors()
     return [reference.compare(ours[:, b], std[:, b], result.photons, ref) for b, ref in enumerate(read_seed_sensors())]

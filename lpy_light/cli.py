@@ -21,11 +21,11 @@ import threading
 from pathlib import Path
 
 from .errors import InputError, LpyLightError
+from .estimators import DEFAULT_ESTIMATOR, ESTIMATORS, NextEventSettings
 from .process_state import preserved_locale
 from .results import check_out_dir, check_outputs
 from .scene import builtin_scenes, resolve_scene  # noqa: F401  (scene lookup lives with scenes)
 
-MAX_NEE_PICKS = 4096      # shadow rays per vertex; 0 (every target) is the way to ask for more
 DEFAULT_PRECISION = 0.01  # `run` without --photons/--precision: every sensor and band to 1 % (nee)
 DEFAULT_CAP = 100_000_000  # ... but no more photons than this (a sensor in the dark would hold the run)
 
@@ -62,29 +62,29 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--seed", type=int, default=1, help="random seed (default 1); results depend on it alone")
     r.add_argument("--threads", type=int, default=None, help="threads (default: all cores)")
     r.add_argument("--out", required=True, help="output folder")
-    r.add_argument("--estimator", choices=("nee", "weighted", "analog"), default="nee",
-                   help="nee (default: expected absorption at every hit plus next-event tallies on sensors and "
-                        "receivers: the most precise per second), weighted (no next events: every photon's "
-                        "own hits, bands share events; for the energy closure per material) or analog (SEC2's "
-                        "counting: one photon, one event, raw hit counts)")
+    r.add_argument("--estimator", choices=tuple(ESTIMATORS), default=DEFAULT_ESTIMATOR,
+                   help="; ".join("%s%s: %s" % (e.name, " (default)" if e.name == DEFAULT_ESTIMATOR else "", e.summary)
+                                  for e in ESTIMATORS.values()))
     r.add_argument("--quiet", action="store_true", help="no progress lines")
     r.add_argument("--dask", metavar="ADDRESS", default=None,
                    help="trace the photon chunks on a Dask cluster, with the same numbers as here: 'local' or "
                         "'local:N' (N worker processes on this machine, on 127.0.0.1 only; --threads per worker), "
                         "a scheduler's address (tls://host:8786) or scheduler file (.json); "
                         "needs pip install 'lpy-light[dask]' (docs/scaling.md)")
-    r.add_argument("--nee-picks", type=int, default=1, metavar="K",
-                   help="with --estimator nee: targets per next event, drawn at random (default 1; 0 = all)")
-    r.add_argument("--nee-images", type=float, default=0.5, metavar="K",
+    nee = ESTIMATORS["nee"].settings
+    r.add_argument("--nee-picks", type=int, default=nee.picks, metavar="K",
+                   help="with --estimator nee: targets per next event, drawn at random (default %d; 0 = all)"
+                        % nee.picks)
+    r.add_argument("--nee-images", type=float, default=nee.images, metavar="K",
                    help="with --estimator nee: next events through a perfect mirror per vertex, on average (default "
-                        "0.5; 0 = none: light whose last bounce is specular is then counted)")
-    r.add_argument("--nee-images2", type=float, default=0.25, metavar="K",
+                        "%g; 0 = none: light whose last bounce is specular is then counted)" % nee.images)
+    r.add_argument("--nee-images2", type=float, default=nee.images2, metavar="K",
                    help="with --estimator nee: next events through two perfect mirrors per vertex, on average "
-                        "(default 0.25; 0 = none: light after two specular bounces is then counted)")
-    r.add_argument("--nee-zones", type=float, default=0.3, metavar="K",
+                        "(default %g; 0 = none: light after two specular bounces is then counted)" % nee.images2)
+    r.add_argument("--nee-zones", type=float, default=nee.zones, metavar="K",
                    help="with --estimator nee: two-step next events per vertex through the surface right beside a "
-                        "disc sensor (within 4 radii of a wall or table), on average (default 0.3; 0 = none: that "
-                        "light then comes only from the photons that land there)")
+                        "disc sensor (within 4 radii of a wall or table), on average (default %g; 0 = none: that "
+                        "light then comes only from the photons that land there)" % nee.zones)
     r.add_argument("--no-nee-control", action="store_true",
                    help="with --estimator nee: no control variate (each sensor's point-source value deposited at "
                         "every vertex, picks carrying only the difference); for comparisons")
@@ -128,6 +128,18 @@ def _sweep_parser(sub):
     s.add_argument("--quiet", action="store_true", help="no line per finished run")
 
 
+def nee_options(args) -> dict:
+    """The next-event settings the command line sets (``--nee-*``), checked, each error naming its option."""
+    out = {"picks": args.nee_picks, "images": args.nee_images, "images2": args.nee_images2, "zones": args.nee_zones,
+           "control": not args.no_nee_control}
+    for name, value in out.items():
+        try:
+            NextEventSettings(**{name: value})
+        except InputError as exc:
+            raise InputError(str(exc).replace("next-event setting %r" % name, "--nee-" + name)) from None
+    return out
+
+
 def cmd_run(args) -> int:
     from . import simulate
     from .scene import load_scene
@@ -139,7 +151,7 @@ def cmd_run(args) -> int:
     check_out_dir(args.out)
     if args.precision is not None and not 0 < args.precision < 1:
         raise InputError("--precision must be a relative σ in (0, 1), e.g. 0.01")
-    if args.photons is None and args.precision is None and args.estimator == "nee":
+    if args.photons is None and args.precision is None and ESTIMATORS[args.estimator].next_events:
         args.precision, args.photons = DEFAULT_PRECISION, DEFAULT_CAP      # the best answer by default
     if args.photons is None:
         args.photons = 10_000_000_000 if args.precision is not None else 1_000_000
@@ -148,19 +160,8 @@ def cmd_run(args) -> int:
     measured, ref, ref_band = _before_run(args, chamber)
     check_outputs(args.out, chamber.inputs + [Path(f) for f in [args.calibrate] + (args.reference or []) if f])
     kscene = simulate.KernelScene(chamber, estimator=args.estimator)
-    if not 0 <= args.nee_picks <= MAX_NEE_PICKS:
-        raise InputError("--nee-picks must be in 0..%d (0: every target at every vertex)" % MAX_NEE_PICKS)
-    kscene.nee_picks = args.nee_picks
-    if not 0 <= args.nee_images <= 64:
-        raise InputError("--nee-images must be in 0..64")
-    kscene.nee_images = args.nee_images
-    if not 0 <= args.nee_images2 <= 64:
-        raise InputError("--nee-images2 must be in 0..64")
-    kscene.nee_images2 = args.nee_images2
-    if not 0 <= args.nee_zones <= 64:
-        raise InputError("--nee-zones must be in 0..64")
-    kscene.nee_zones = args.nee_zones
-    kscene.nee_control = not args.no_nee_control
+    if kscene.settings.sensors or kscene.settings.receivers:
+        kscene.configure(**nee_options(args))
     with contextlib.ExitStack() as cluster_scope:
         executor = None
         if args.dask is not None:
@@ -169,7 +170,7 @@ def cmd_run(args) -> int:
             executor = cluster.DaskChunks(client)
         if executor is None:    # numba compiles the kernel on a first run: said, and timed apart from tracing
             _compile_kernel(kscene, args.quiet)
-        if args.estimator == "nee":
+        if ESTIMATORS[args.estimator].next_events:
             kscene.prune_next_events(threads=args.threads if executor is None else None)
         return _trace_and_write(args, path, chamber, kscene, measured, ref, ref_band, executor)
 
@@ -225,10 +226,10 @@ def _trace_and_write(args, path, chamber, kscene, measured, ref, ref_band, execu
         norm = units.from_spectrum(photons, std, chamber.sensors.area * chamber.metres_per_unit ** 2,
                                    chamber.spectrum, chamber.bands)
     extra, calibration, comparison = _after_run(args, chamber, result, norm, measured, ref, ref_band)
-    if args.estimator == "nee":
-        extra["next_events"] = {"picks": kscene.nee_picks, "images": kscene.nee_images,
-                                "images2": kscene.nee_images2, "zones": kscene.nee_zones,
-                                "zones_built": int(len(kscene.zones.target_plane)), "control": kscene.nee_control,
+    if ESTIMATORS[args.estimator].next_events:
+        ks = kscene.settings
+        extra["next_events"] = {"picks": ks.picks, "images": ks.images, "images2": ks.images2, "zones": ks.zones,
+                                "zones_built": int(len(kscene.zones.target_plane)), "control": ks.control,
                                 "mirror_planes": int(kscene.mir_on.sum()),
                                 "sources_off": [m.name for m, on in zip(kscene.materials, kscene.mat_nee) if not on]}
     if calibration is not None:

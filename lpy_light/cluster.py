@@ -293,8 +293,8 @@ class DaskChunks:
         self.workers = len(workers)
         return sum(w.get("nthreads", 1) for w in workers.values())
 
-    def open(self, kscene, n_chunks: int) -> int:
-        kscene.records()           # what the records need a pilot for (a plant's mean pick share) travels with it
+    def open(self, kscene, n_chunks: int, note=None) -> int:
+        kscene.records(note)       # what the records need a pilot for (a plant's mean pick share) travels with it
         state = pickle.dumps(kscene, protocol=pickle.HIGHEST_PROTOCOL)
         self.digest = hashlib.sha256(state).hexdigest()[:24]
         self._plugin = "lpy-light-scene-%s-%s" % (self.digest, uuid.uuid4().hex[:8])

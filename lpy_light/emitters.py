@@ -26,9 +26,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from .geometry import triangle_areas
+from .kernel.records import EMIT_CYLINDER, EMIT_LINE, EMIT_POINT, EMIT_SPHERE, EMIT_TRIANGLE  # the kinds, once
 from .kernel.vectors import norm as vnorm
-
-EMIT_LINE, EMIT_TRIANGLE, EMIT_CYLINDER, EMIT_POINT, EMIT_SPHERE = 0, 1, 2, 3, 4
 
 
 @dataclass

@@ -208,20 +208,10 @@ class LightModel:
         self.precision = None if precision is None else float(precision)
         self.parameter = parameter
         self.progress = progress
-        self.kscene = simulate.KernelScene(self.chamber, estimator=estimator)
-        self.kscene.one_sided_organs = bool(one_sided_organs)
-        if int(nee_picks) < 0:
-            raise InputError("nee_picks must be >= 0 (0 = every target at every vertex)")
-        self.kscene.nee_picks = int(nee_picks)
-        if mirror_events is not None and not 0 <= float(mirror_events) <= 64:
-            raise InputError("mirror_events must be between 0 and 64 (next events through a mirror per vertex)")
+        self.kscene = simulate.KernelScene(self.chamber, estimator=estimator, one_sided_organs=one_sided_organs)
+        self.kscene.configure(**_plant_settings(nee_picks=nee_picks, cone_rays=cone_rays, local_rays=local_rays))
+        _plant_settings(mirror_events=mirror_events)         # checked here, used at each step (_mirror_events)
         self.mirror_events = None if mirror_events is None else float(mirror_events)
-        if cone_rays is not None and not 0 <= float(cone_rays) <= 64:
-            raise InputError("cone_rays must be between 0 and 64 (rays into the organ clusters' cones per vertex)")
-        self.kscene.nee_cones = None if cone_rays is None else float(cone_rays)
-        if local_rays is not None and not 0 <= float(local_rays) <= 64:
-            raise InputError("local_rays must be between 0 and 64 (rays per vertex to the large organs around it)")
-        self.kscene.nee_local = None if local_rays is None else float(local_rays)
         self.targets = None if targets is None else {str(t) for t in ([targets] if isinstance(targets, str) else targets)}
         if self.targets is not None and not self.targets <= set(self.organ_materials):
             raise InputError("targets %s are not organ modules (organs: %s)"
@@ -336,9 +326,9 @@ class LightModel:
             return StepResult(self.step - 1, {}, 0, time.perf_counter() - t0, 0, 0, 0)
         outside = self._outside(organs)
         targets = None if self.targets is None else [o.module in self.targets for o in organs]
-        self.kscene.nee_sensors = False       # steps report organs; sensors are counted, not targeted
+        self.kscene.configure(sensors=False)  # steps report organs; sensors are counted, not targeted
         self.kscene.set_organs(organs, self.materials, targets)
-        self.kscene.nee_images = self._mirror_events()
+        self.kscene.configure(images=self._mirror_events())
         self.kscene.retarget()                # (a no-op unless set_organs' targets are out of date)
         if not self._pruned and organs:       # once, with the first plant: which vertices see organs
             self.kscene.prune_next_events(threads=self.threads, keep=self.materials)   # organs' materials stay on
@@ -373,7 +363,7 @@ class LightModel:
         if self.mirror_events is not None:
             return self.mirror_events
         ks = self.kscene
-        cones = simulate.cones_for(len(ks.targets.kind)) if ks.nee_cones is None else float(ks.nee_cones)
+        cones = simulate.cones_for(len(ks.targets.kind)) if ks.settings.cones is None else ks.settings.cones
         return MIRROR_EVENTS / 2 if cones > 0 else MIRROR_EVENTS
 
     def _outside(self, organs) -> list:
@@ -432,6 +422,27 @@ class LightModel:
         if self.on_step is not None:
             self.on_step(step, organs)
         return lstring, lscene
+
+
+#: LightModel's arguments that are next-event settings (:class:`lpy_light.estimators.NextEventSettings`)
+PLANT_SETTINGS = {"nee_picks": "picks", "mirror_events": "images", "cone_rays": "cones", "local_rays": "local"}
+
+
+def _plant_settings(**arguments) -> dict:
+    """Next-event settings from :class:`LightModel`'s arguments (None: the default rule), each checked; an error
+    names the argument."""
+    from .estimators import NextEventSettings
+    out = {}
+    for argument, value in arguments.items():
+        name = PLANT_SETTINGS[argument]
+        if value is None and name in ("picks", "images"):
+            continue
+        try:
+            NextEventSettings(**{name: value})
+        except InputError as exc:
+            raise InputError(str(exc).replace("next-event setting %r" % name, argument)) from None
+        out[name] = value
+    return out
 
 
 def _photons(n) -> int:

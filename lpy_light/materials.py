@@ -38,9 +38,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from .errors import InputError
+from .kernel.records import ABSORB, DIFFUSE_R, DIFFUSE_T, SPECULAR_R, SPECULAR_T  # noqa: F401  (the kinds, once)
 from .radiance import MATERIAL_TYPES
 
-DIFFUSE_R, SPECULAR_R, DIFFUSE_T, SPECULAR_T, ABSORB = range(5)
 EMITTING = ("light", "glow")
 
 
@@ -133,9 +133,6 @@ def black(n_bands: int, name: str = "black") -> Material:
     return Material(name, "plastic", e)
 
 
-ESTIMATORS = ("weighted", "analog")
-
-
 def band_passes(prob: np.ndarray) -> np.ndarray:
     """(B,) the pass (path) that carries each band, for ``prob`` (M, 5, B): bands share a path as long as
     Σ_e max_b P_e,b over the group's bands stays <= 1 for every material (e = the four scattering events).
@@ -160,17 +157,18 @@ def band_passes(prob: np.ndarray) -> np.ndarray:
     return passes
 
 
-def sampling_tables(materials, specular: str = "mirror", estimator: str = "weighted"):
+def sampling_tables(materials, specular: str = "mirror", weighted: bool = True):
     """Arrays the kernel needs: ``prob`` (M, 5, B) event probabilities per band,
     ``cum`` (M, 5, P) cumulative probabilities q of the event drawn on each of P
     paths per photon (the last slot, "absorb", takes the rest), ``passes`` (B,)
     the path that carries each band, ``phong`` (M,) lobe exponents (inf =
     perfect mirror).
 
-    ``weighted`` (and ``nee``): bands share paths (:func:`band_passes`; P = 1 in
+    ``weighted`` (the estimators whose photons carry a weight, :attr:`lpy_light.estimators.Estimator.weighted`:
+    ``weighted``, ``nee``): bands share paths (:func:`band_passes`; P = 1 in
     every scene so far), q of a path = max over its bands of P_e,b over the four
     scattering events, so that the weight factor P_e,b / q_e never exceeds 1;
-    absorption is deposited as an expected value by the kernel.  ``analog``:
+    absorption is deposited as an expected value by the kernel.  Not ``weighted`` (``analog``):
     P = B, q = P_e,b of each band: SEC2's own counting, one band per path; the
     kernel then traces every photon once per band, each path carrying weight 1
     in its band only (a shared q, e.g. the band mean, would let a band whose
@@ -180,10 +178,8 @@ def sampling_tables(materials, specular: str = "mirror", estimator: str = "weigh
     """
     from .kernel.sampling import phong_exponent
 
-    if estimator not in ESTIMATORS:
-        raise ValueError("estimator must be one of %s, not %r" % (", ".join(ESTIMATORS), estimator))
     prob = np.stack([m.events for m in materials])
-    if estimator == "analog":
+    if not weighted:
         q = prob.copy()                              # (M, 5, B): each band its own path
         passes = np.arange(prob.shape[2])
     else:

@@ -21,9 +21,9 @@ from pathlib import Path
 
 import numpy as np
 
+from .kernel.records import SENSOR_DISC as DISC, SENSOR_QUAD as QUAD  # the kinds, once
 from .kernel.vectors import norm as vnorm
 
-DISC, QUAD = 0, 1
 _DISC_COLUMNS = ["X", "Y", "Z", "rayon_capteur", "Xnorm", "Ynorm", "Znorm"]
 _QUAD_COLUMNS = ["%s%d" % (a, i) for i in range(4) for a in "xyz"]
 BOUND_MARGIN = 1.02   # bounding quads are 2 % larger than the sensor they stand for

@@ -220,8 +220,7 @@ def load(scene: str = "angers", variant: str = "default"):
 def kernel_scene(chamber, estimator: str = "nee", threads: int = 2) -> simulate.KernelScene:
     """A KernelScene ready to run: next events pruned for ``nee`` (as ``lpy-light run`` does)."""
     ks = simulate.KernelScene(chamber, estimator=estimator)
-    if estimator == "nee":
-        ks.prune_next_events(threads=threads)
+    ks.prune_next_events(threads=threads)         # (nothing to prune without next events)
     return ks
 
 

@@ -12,7 +12,7 @@ def sec2_counts(path):
 def test_angers_total_agrees_with_sec2(angers_dir):
     chamber = load_scene(angers_dir / "angers.toml")
     n = 1_000_000
-    result = simulate.run(simulate.KernelScene(chamber), n, seed=1)
+    result = simulate.run(simulate.KernelScene(chamber, "weighted"), n, seed=1)
     photons, std = result.sensors()
     sec2 = sec2_counts(angers_dir / "reference-sec2/mesures.txt")
     assert len(sec2) == len(photons) == 240

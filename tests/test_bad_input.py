@@ -397,8 +397,8 @@ def test_decimal_comma_spectrum_is_read_as_such(tmp_path):
     (["--threads", "0"], "--threads must be in 1..1024"),
     (["--threads", "100000"], "--threads must be in 1..1024"),
     (["--precision", "2"], "--precision must be"),
-    (["--nee-picks", "-1"], "--nee-picks must be in 0..4096"),
-    (["--nee-picks", str(2 ** 31 + 5), "--estimator", "nee"], "--nee-picks must be in 0..4096"),
+    (["--nee-picks", "-1"], "--nee-picks must be a whole number in 0..4096"),
+    (["--nee-picks", str(2 ** 31 + 5), "--estimator", "nee"], "--nee-picks must be a whole number in 0..4096"),
     (["--reference-band", "700-800"], "--reference-band needs --reference"),
 ])
 def test_bad_options(tmp_path, capsys, args, words):

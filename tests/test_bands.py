@@ -30,7 +30,7 @@ def _scene(folder, bands):
 @pytest.fixture(scope="module")
 def runs(tmp_path_factory):
     n = 150_000
-    one_pass = simulate.run(simulate.KernelScene(_scene(tmp_path_factory.mktemp("all"), BANDS)), n, seed=1)
+    one_pass = simulate.run(simulate.KernelScene(_scene(tmp_path_factory.mktemp("all"), BANDS), "weighted"), n, seed=1)
     separate = [simulate.run(simulate.KernelScene(_scene(tmp_path_factory.mktemp("b%d" % i), [b]), estimator="analog"),
                              n, seed=100 + i)
                 for i, b in enumerate(BANDS)]
@@ -125,7 +125,7 @@ def test_bands_that_cannot_share_a_path_travel_on_their_own(tmp_path):
     agree with analog counting."""
     from lpy_light.materials import band_passes, sampling_tables
     chamber = _dichroic(tmp_path / "d")
-    ks = simulate.KernelScene(chamber)
+    ks = simulate.KernelScene(chamber, "weighted")
     np.testing.assert_array_equal(ks.band_pass, [0, 0, 1])
     prob, cum, passes, _ = sampling_tables(ks.materials)
     q = np.diff(np.concatenate([np.zeros((len(prob), 1, cum.shape[2])), cum], axis=1), axis=1)[:, :4]

@@ -55,7 +55,7 @@ def test_calibration_recovers_a_known_scale(scene):
     measured = units.read_measured(scene.parent / "measured.csv", chamber)
     assert list(measured.sensor) == list(range(9)) + [4]
     assert measured.distance[0] == pytest.approx(np.sqrt(50))
-    result = simulate.run(simulate.KernelScene(chamber), PHOTONS, seed=5, threads=2)
+    result = simulate.run(simulate.KernelScene(chamber, "weighted"), PHOTONS, seed=5, threads=2)
     photons, std = result.sensors()
     cal = units.calibrate(measured, photons, std, chamber.sensors.area * 1e-6, chamber.band_labels)
     k, k_std = cal.norm.scale[0] * PHOTONS, cal.norm.scale_std[0] * PHOTONS   # per fraction of the photons

@@ -2,7 +2,7 @@
 import io
 import time
 
-from lpy_light import simulate
+from lpy_light import kernel_scene, simulate
 from lpy_light.scene import load_scene
 
 from scenes import box, lamp_rectangle, write_scene
@@ -11,7 +11,7 @@ from scenes import box, lamp_rectangle, write_scene
 def _kscene(tmp_path):
     rad = ("void plastic grey\n0\n0\n5 .5 .5 .5 0 0\n\nvoid light lamp\n0\n0\n3 10 10 10\n\n"
            + box("grey", (0, 0, 0), (1000, 1000, 1100)) + lamp_rectangle("lamp", (500, 500), 100, 1000))
-    return simulate.KernelScene(load_scene(write_scene(tmp_path, rad, [(500, 500, 500, 50, 0, 0, 1)])))
+    return simulate.KernelScene(load_scene(write_scene(tmp_path, rad, [(500, 500, 500, 50, 0, 0, 1)])), "weighted")
 
 
 class _SlowFirstTrace:
@@ -33,7 +33,7 @@ class _SlowFirstTrace:
 def test_compile_is_named_and_not_counted_as_tracing(tmp_path, monkeypatch):
     """Breaks if the progress line gives a photon rate or time left polluted by the compile (the first run
     said '466 photons/s  21377 s left'), or stays silent while the kernel compiles."""
-    monkeypatch.setattr(simulate, "COMPILE_NOTE_AFTER", 0.05)
+    monkeypatch.setattr(kernel_scene, "COMPILE_NOTE_AFTER", 0.05)
     delay = 1.0
     out = io.StringIO()
     progress = simulate.progress_printer(out, every=0.0)
@@ -86,5 +86,5 @@ def test_a_growth_step_says_how_long_the_kernel_compiled_in_it(tmp_path, monkeyp
     organs = model.organs_from_meshes({1: (leaf, {"reflectance": 0.5}, "Leaf")})
     model.run(organs)                                    # compiled (or loaded) now
     assert "compile_seconds" not in model.run(organs).extra
-    monkeypatch.setattr(simulate, "COMPILE_NOTE_AFTER", -1.0)   # now any readiness check counts as a compile
+    monkeypatch.setattr(kernel_scene, "COMPILE_NOTE_AFTER", -1.0)   # now any readiness check counts as a compile
     assert model.run(organs).extra["compile_seconds"] > 0

@@ -192,8 +192,8 @@ def test_cone_rays_by_default_for_a_canopy_only():
     from lpy_light.simulate import CONE_RAYS, CONE_TARGETS, cones_for
     assert cones_for(CONE_TARGETS - 1) == 0.0 and cones_for(CONE_TARGETS) == CONE_RAYS == 10.0
     model = LightModel("angers", organs={"Leaf": THIN}, plant_unit="mm", photons=1000)
-    assert model.kscene.nee_cones is None
-    assert LightModel("angers", organs={"Leaf": THIN}, plant_unit="mm", photons=1000, cone_rays=2).kscene.nee_cones == 2.0
+    assert model.kscene.settings.cones is None
+    assert LightModel("angers", organs={"Leaf": THIN}, plant_unit="mm", photons=1000, cone_rays=2).kscene.settings.cones == 2.0
 
 
 def test_local_rays_by_default_for_a_canopy_only():
@@ -201,8 +201,8 @@ def test_local_rays_by_default_for_a_canopy_only():
     rays; an explicit setting holds either way, and one out of range is refused."""
     from lpy_light.simulate import CONE_TARGETS, LOCAL_RAYS, local_for
     assert local_for(CONE_TARGETS - 1) == 0.0 and local_for(CONE_TARGETS) == LOCAL_RAYS == 8.0
-    assert LightModel("angers", organs={"Leaf": THIN}, plant_unit="mm", photons=1000).kscene.nee_local is None
-    assert LightModel("angers", organs={"Leaf": THIN}, plant_unit="mm", photons=1000, local_rays=2).kscene.nee_local == 2.0
+    assert LightModel("angers", organs={"Leaf": THIN}, plant_unit="mm", photons=1000).kscene.settings.local is None
+    assert LightModel("angers", organs={"Leaf": THIN}, plant_unit="mm", photons=1000, local_rays=2).kscene.settings.local == 2.0
     with pytest.raises(InputError, match="local_rays"):
         LightModel("angers", organs={"Leaf": THIN}, plant_unit="mm", photons=1000, local_rays=-1)
 

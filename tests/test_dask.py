@@ -71,7 +71,7 @@ def test_cluster_run_is_bitwise_a_local_run(client, nee_scene):
 
 
 def test_precision_and_stop_work_across_the_cluster(client):
-    ks = simulate.KernelScene(load_scene(cli.resolve_scene("angers")))
+    ks = simulate.KernelScene(load_scene(cli.resolve_scene("angers")), "weighted")
     kw = dict(seed=3, precision=0.5, min_photons=2 * CHUNK)     # reached after 22 chunks
     local = simulate.run(ks, 40 * CHUNK, threads=2, **kw)
     remote = simulate.run(ks, 40 * CHUNK, executor=cluster.DaskChunks(client), **kw)

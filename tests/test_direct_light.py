@@ -26,7 +26,7 @@ def direct(tmp_path_factory):
     rad = BLACK + box("black", (0, 0, 0), (1000, 1000, 1100)) + lamp_rectangle("lamp", (500, 500), 100, 1000)
     path = write_scene(tmp_path_factory.mktemp("direct"), rad, _rows(DISCS))
     chamber = load_scene(path)
-    return chamber, simulate.run(simulate.KernelScene(chamber), PHOTONS, seed=11, threads=2)
+    return chamber, simulate.run(simulate.KernelScene(chamber, "weighted"), PHOTONS, seed=11, threads=2)
 
 
 def test_direct_light_matches_quadrature(direct):
@@ -65,7 +65,7 @@ def test_mirror_floor_matches_image_source(tmp_path):
     disc = ((450, 520, 300), (0, 0, -1), 100.0)
     path = write_scene(tmp_path, rad, _rows([disc]))
     chamber = load_scene(path)
-    result = simulate.run(simulate.KernelScene(chamber), PHOTONS, seed=5, threads=2)
+    result = simulate.run(simulate.KernelScene(chamber, "weighted"), PHOTONS, seed=5, threads=2)
     photons, std = result.sensors()
     # image panel at z = -1000 facing up
     expected = 0.8 * PHOTONS * rectangle_to_disc_fraction((500, 500), 100, -1000, (0, 0, 1), *disc)
@@ -84,7 +84,7 @@ def test_transparent_sensor_changes_no_other_count(tmp_path):
     for discs in (base, base + [up, down]):
         path = write_scene(tmp_path / str(len(discs)), rad, _rows(discs))
         chamber = load_scene(path)
-        runs.append(simulate.run(simulate.KernelScene(chamber), 100_000, seed=3, threads=2))
+        runs.append(simulate.run(simulate.KernelScene(chamber, "weighted"), 100_000, seed=3, threads=2))
     a, b = runs[0].sensors()[0], runs[1].sensors()[0]
     np.testing.assert_array_equal(a, b[:2])
     assert b[2, 0] > 5 * b[3, 0] > 0   # each counts only crossings from its front side
@@ -92,7 +92,7 @@ def test_transparent_sensor_changes_no_other_count(tmp_path):
 
 def test_results_do_not_depend_on_threads(direct):
     chamber, _ = direct
-    ks = simulate.KernelScene(chamber)
+    ks = simulate.KernelScene(chamber, "weighted")
     r1 = simulate.run(ks, 3 * simulate.CHUNK + 17, seed=7, threads=1)
     r2 = simulate.run(ks, 3 * simulate.CHUNK + 17, seed=7, threads=2)
     r3 = simulate.run(ks, 3 * simulate.CHUNK + 17, seed=8, threads=2)

@@ -49,10 +49,7 @@ def _light(scene, estimator, photons, seed, facing=True):
                        targets=["Leaf", "Bud"], threads=2)
     converted = model.organs_from_meshes(_organs())
     if not facing:                       # points by area on the whole mesh, as before
-        model.run(converted, photons=1000)
-        ks = model.kscene
-        ks.set_organs = lambda *a, **k: None                           # keep the targets as changed here
-        ks.targets = ks.targets._replace(facing=np.zeros_like(ks.targets.facing))
+        model.kscene.configure(facing=False)
     step = model.run(converted)
     keys = sorted(step.organs)
     return (np.array([step.organs[k].ppfd[0] for k in keys]), np.array([step.organs[k].ppfd_std[0] for k in keys]),

@@ -16,7 +16,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from lpy_light import cli, simulate
+from lpy_light import cli, memory, simulate
 from lpy_light.errors import InputError, LpyLightError, ResourceError
 from lpy_light.radiance import parse_rad, read_rad
 from lpy_light.scene import Physics, build_chamber, load_scene, resolve_scene
@@ -167,7 +167,7 @@ def test_fuzz_scene_build(bands, one_sided, lamps, specular, text):
                                 physics=Physics(one_sided=one_sided, lamps=lamps, specular=specular))
     except InputError:
         return
-    ks = simulate.KernelScene(chamber)
+    ks = simulate.KernelScene(chamber, "weighted")
     assert ks.n_bands == len(bands) and len(ks.tri_verts) <= len(chamber.triangles)
 
 
@@ -338,7 +338,7 @@ def test_keyboard_interrupt_in_run_keeps_a_whole_prefix(tmp_path):
     rad = ("void plastic grey\n0\n0\n5 .5 .5 .5 0 0\n\nvoid light lamp\n0\n0\n3 10 10 10\n\n"
            + box("grey", (0, 0, 0), (1000, 1000, 1100)) + lamp_rectangle("lamp", (500, 500), 100, 1000))
     chamber = load_scene(write_scene(tmp_path, rad, [(500, 500, 500, 50, 0, 0, 1)]))
-    ks = simulate.KernelScene(chamber)
+    ks = simulate.KernelScene(chamber, "weighted")
     calls = []
 
     def progress(done, total, seconds):
@@ -427,7 +427,7 @@ def _huge_chamber(n_sensors, n_bands):
 def test_huge_tallies_are_refused_before_allocating():
     chamber = _huge_chamber(100_000, 400)     # tally_prod alone: 100k rows x 400 x 400 x 8 bytes = 128 GB
     with pytest.raises(ResourceError) as info:
-        simulate.KernelScene(chamber)
+        simulate.KernelScene(chamber, "weighted")
     msg = str(info.value)
     assert isinstance(info.value, LpyLightError)
     assert "needs about" in msg and "GiB available" in msg and "x 400 band(s) x 400 band(s)" in msg
@@ -446,16 +446,16 @@ def test_memory_estimate_grows_with_threads_bands_rows():
 
 
 def test_run_checks_memory_for_its_thread_count(room, monkeypatch):
-    ks = simulate.KernelScene(room)
+    ks = simulate.KernelScene(room, "weighted")
     one = simulate.memory_estimate(ks.n_rows, ks.n_bands, 1, n_stats=len(ks.materials) + len(ks.emit_nee))
-    monkeypatch.setattr(simulate, "available_memory", lambda: int(1.5 * one["total"] / simulate.MEMORY_SHARE))
+    monkeypatch.setattr(memory, "available_memory", lambda: int(1.5 * one["total"] / memory.MEMORY_SHARE))
     simulate.run(ks, 1000, threads=1)                                   # fits
     with pytest.raises(ResourceError, match="for 64 thread"):
         simulate.run(ks, 64 * simulate.CHUNK, threads=64)               # 64 threads' chunks do not
 
 
 def test_command_line_refuses_with_one_line(tmp_path, capsys, monkeypatch):
-    monkeypatch.setattr(simulate, "available_memory", lambda: 1 << 20)   # 1 MiB left
+    monkeypatch.setattr(memory, "available_memory", lambda: 1 << 20)   # 1 MiB left
     scene = write_scene(tmp_path / "s", "void plastic grey\n0\n0\n5 .6 .6 .6 0 0\n\nvoid light lamp\n0\n0\n3 1 1 1\n\n"
                         + box("grey", (0, 0, 0), (1000, 1000, 1100)) + lamp_rectangle("lamp", (500, 500), 100, 1000),
                         [(500, 500, 500, 50, 0, 0, 1)] * 300, "bands = %r\n" % [[400 + 10 * i, 410 + 10 * i]
@@ -468,7 +468,7 @@ def test_command_line_refuses_with_one_line(tmp_path, capsys, monkeypatch):
 
 
 def test_available_memory_is_known_here():
-    free = simulate.available_memory()
+    free = memory.available_memory()
     assert free is None or free > 0
 
 

@@ -34,9 +34,9 @@ def test_sigma2n_is_constant_from_1e6_to_1e7_photons(angers):
 def test_without_two_mirror_events_the_tail_returns(angers):
     """The same runs with the events through two mirrors off (those photons counted): σ²·N at 1e7 well above
     its value at 1e6 -- the test above would fail."""
-    angers.nee_images2 = 0.0
+    angers.configure(images2=0.0)
     try:
         small, large = sigma2n(angers, 1_000_000), sigma2n(angers, 10_000_000)
     finally:
-        angers.nee_images2 = 0.25
+        angers.configure(images2=0.25)
     assert large / small > 1.2, (small, large)

@@ -84,7 +84,7 @@ def _run(scene, estimator, photons, seed=3, picks=None, prune=True):
     chamber = load_scene(resolve_scene(str(scene)))
     ks = simulate.KernelScene(chamber, estimator)
     if picks is not None:
-        ks.nee_picks = picks
+        ks.configure(picks=picks)
     if estimator == "nee" and prune:
         ks.prune_next_events(threads=2)
     r = simulate.run(ks, photons, seed=seed, threads=2)

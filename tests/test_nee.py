@@ -23,8 +23,7 @@ def _rows(discs):
 
 def _run(chamber, estimator, photons, seed, picks=0, images=0):
     ks = simulate.KernelScene(chamber, estimator)
-    ks.nee_picks = picks
-    ks.nee_images = images
+    ks.configure(picks=picks, images=images)
     return simulate.run(ks, photons, seed=seed, threads=2)
 
 
@@ -95,7 +94,7 @@ def test_a_biased_next_event_would_fail(room):
 def test_pruning_blind_sources_changes_nothing(room):
     chamber, _ = room
     ks = simulate.KernelScene(chamber, "nee")
-    ks.nee_picks = 0
+    ks.configure(picks=0)
     full = simulate.run(ks, 30_000, seed=31, threads=2)
     report = ks.prune_next_events(photons=4096, max_share=0.05)
     pruned = simulate.run(ks, 30_000, seed=32, threads=2)
@@ -127,7 +126,7 @@ def test_shadow_rays_reach_thin_sliver_triangles(tmp_path):
     ks = simulate.KernelScene(chamber, "nee")
     mats = {m.name: m for m in chamber.materials}
     ks.set_organs([leaf], mats)
-    ks.nee_sensors = False
+    ks.configure(sensors=False)
     ks.retarget()
     (scene, nee), scratch = ks.records(), embree.new_scratch()
     tgt = nee.targets._replace(picks=1)
@@ -144,7 +143,7 @@ def test_shadow_rays_reach_thin_sliver_triangles(tmp_path):
                        None, photon, Stats(np.zeros(N_COUNTERS, np.int64), stats))
     assert stats[0, 0] == 200 and stats[0, 1] == 200, "shadow rays cast, unblocked: %s" % stats[0, :2]
 
-    ks.mat_nee[:] = 1
+    ks.all_sources_on()
     nee_run = simulate.run(ks, 400_000, seed=3, threads=2)
     ks_w = simulate.KernelScene(chamber, "weighted")
     ks_w.set_organs([leaf], mats)
@@ -288,7 +287,7 @@ def test_control_variate_is_unbiased_and_lowers_the_variance(tmp_path):
     out = {}
     for control, seed in ((False, 41), (True, 42)):
         ks = simulate.KernelScene(chamber, "nee")
-        ks.nee_control = control
+        ks.configure(control=control)
         out[control] = simulate.run(ks, 100_000, seed=seed, threads=2).sensors()
     (a, sa), (b, sb) = out[False], out[True]
     z = (a[:, 0] - b[:, 0]) / np.hypot(sa[:, 0], sb[:, 0])
@@ -309,7 +308,7 @@ def test_control_variate_keeps_the_covariances_between_bands(tmp_path):
     values, sigmas = [], []
     for seed in range(12):
         ks = simulate.KernelScene(chamber, "nee")
-        assert ks.nee_control and 0 < ks.nee_picks < len(GRID)
+        assert ks.settings.control and 0 < ks.settings.picks < len(GRID)
         r = simulate.run(ks, 20_001, seed=100 + seed, threads=2)     # odd: the last batch is part-filled
         cov = r.covariance(rows)
         np.testing.assert_allclose(cov, np.broadcast_to(cov[:, :1, :1], cov.shape), rtol=1e-9)
@@ -331,7 +330,7 @@ def test_batched_products_give_the_per_photon_sigma(tmp_path):
     out = {}
     for m in (1, 8):
         ks = simulate.KernelScene(chamber, "nee")
-        ks.nee_batch = m
+        ks.configure(batch=m)
         out[m] = simulate.run(ks, 40_001, seed=7, threads=2)
     one, eight = out[1], out[8]
     assert one.counters[C_BATCHES] == 40_001 and eight.counters[C_BATCHES] == math.ceil(40_001 / 8)
@@ -400,7 +399,7 @@ def test_zone_events_are_unbiased_and_lower_the_variance(tmp_path):
     out = {}
     for zones, seed in ((0.0, 51), (1.0, 52)):
         ks = simulate.KernelScene(chamber, "nee")
-        ks.nee_zones = zones
+        ks.configure(zones=zones)
         out[zones] = simulate.run(ks, 300_000, seed=seed, threads=2).sensors()
     (a, sa), (b, sb) = out[0.0], out[1.0]
     z = (a[:, 0] - b[:, 0]) / np.hypot(sa[:, 0], sb[:, 0])
@@ -434,8 +433,7 @@ def _mirror_room_organs():
 def _mirror_room_run(chamber, estimator, images, photons, seed):
     ks = simulate.KernelScene(chamber, estimator)
     ks.set_organs(_mirror_room_organs(), {m.name: m for m in chamber.materials})
-    ks.nee_sensors = False
-    ks.nee_images = images
+    ks.configure(sensors=False, images=images)
     ks.retarget()
     r = simulate.run(ks, photons, seed=seed, threads=2)
     (inc, sinc), (ab, sab) = r.receivers_incident(), r.receivers_absorbed()
@@ -483,7 +481,7 @@ def test_a_point_just_behind_another_surface_is_not_seen(tmp_path):
     for est, n in (("nee", 300_000), ("weighted", 3_000_000)):
         ks = simulate.KernelScene(chamber, est)
         ks.set_organs(organs, {m.name: m for m in chamber.materials}, [True, False, True])
-        ks.nee_sensors = False
+        ks.configure(sensors=False)
         ks.retarget()
         r = simulate.run(ks, n, seed=81, threads=2)
         inc, sinc = r.receivers_incident()
@@ -614,7 +612,7 @@ def corridor(tmp_path_factory):
 
 def _corridor_run(chamber, photons, images2, seed=42):
     ks = simulate.KernelScene(chamber, "nee")
-    ks.nee_picks, ks.nee_images, ks.nee_images2 = 1, 0.5, images2
+    ks.configure(picks=1, images=0.5, images2=images2)
     return simulate.run(ks, photons, seed=seed, threads=2)
 
 

@@ -46,8 +46,7 @@ def _bud(scene, organs, estimator, photons, seed, zones=0.5, importance=True):
     model = LightModel(scene, organs={"Bud": GREEN, "Leaf": THIN}, lamp_flux=100.0, plant_unit="mm",
                        position=(500, 500, 0), photons=photons, estimator=estimator, seed=seed, targets=["Bud"],
                        threads=2)
-    model.kscene.nee_organ_zones = zones
-    model.kscene.nee_importance = importance
+    model.kscene.configure(organ_zones=zones, importance=importance)
     light = model.intercept(organs)[1]
     return light.ppfd[0], light.ppfd_std[0]
 
@@ -114,8 +113,7 @@ def test_picks_follow_what_a_vertex_can_bring(pocket):
     for share, seed in ((True, 81), (False, 82)):
         model = LightModel(scene, organs={"Bud": GREEN, "Leaf": THIN}, lamp_flux=100.0, plant_unit="mm",
                            position=(500, 500, 0), photons=300_000, seed=seed, targets=["Bud"], threads=2)
-        model.kscene.nee_pick_share = share
-        model.kscene.nee_picks = 1
+        model.kscene.configure(pick_share=share, picks=1)
         lights = model.intercept(organs)
         buds = sorted(k for k in lights if lights[k].module == "Bud")
         out.append((np.array([lights[k].ppfd[0] for k in buds]), np.array([lights[k].ppfd_std[0] for k in buds])))
@@ -134,7 +132,7 @@ def test_importance_picks_favour_the_targets_beside_a_vertex(pocket):
     model = LightModel(scene, organs={"Bud": GREEN, "Leaf": THIN}, lamp_flux=100.0, plant_unit="mm",
                        position=(500, 500, 0), photons=1, targets=None)
     ks = model.kscene
-    ks.nee_sensors = False
+    ks.configure(sensors=False)
     ks.set_organs(model.organs_from_meshes(organs), model.materials)
     (_, nee) = ks.records()
     tgt, organs = nee.targets, nee.organs
@@ -167,7 +165,7 @@ def _bud_scene(scene, organs):
     model = LightModel(scene, organs={"Bud": GREEN, "Leaf": THIN}, lamp_flux=100.0, plant_unit="mm",
                        position=(500, 500, 0), photons=1, targets=["Bud"])
     ks = model.kscene
-    ks.nee_sensors = False
+    ks.configure(sensors=False)
     ks.set_organs(model.organs_from_meshes(organs), model.materials)
     return ks
 
@@ -231,8 +229,7 @@ def test_an_open_bud_lights_its_own_inside(tmp_path):
     def bud(estimator, photons, seed, new=True):
         model = LightModel(scene, organs={"Bud": white}, lamp_flux=100.0, plant_unit="mm", position=(500, 500, 0),
                            photons=photons, estimator=estimator, seed=seed, targets=["Bud"], threads=2)
-        model.kscene.nee_open_zones = new
-        model.kscene.nee_zone_walk = model.kscene.nee_zone_walk if new else 0
+        model.kscene.configure(open_zones=new, zone_walk=model.kscene.settings.zone_walk if new else 0)
         light = model.intercept(organs)[1]
         return light.ppfd[0], light.ppfd_std[0]
 

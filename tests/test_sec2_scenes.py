@@ -178,7 +178,7 @@ def test_point_light_matches_solid_angle(tmp_path):
     chamber = load_scene(write_scene(tmp_path, rad, discs))
     assert chamber.unit == "mm" and list(chamber.emitters.kind) == [EMIT_POINT]
     n = 400_000
-    photons, std = simulate.run(simulate.KernelScene(chamber), n, seed=3, threads=2).sensors()
+    photons, std = simulate.run(simulate.KernelScene(chamber, "weighted"), n, seed=3, threads=2).sensors()
     for s, (x, y, z, r, nx, ny, nz) in enumerate(discs):
         d = np.array([x, y, z]) - [500, 500, 1000]
         dist = np.linalg.norm(d)
@@ -224,7 +224,7 @@ def test_chambre2_energy_closure_and_picture(tmp_path, capsys):
 def test_chambre2_as_written_leaks(tmp_path):
     """The orientation claim of its README: read with SEC2's one-sided surfaces as written, ~75 % escape."""
     (tmp_path / "s.toml").write_text('geometry = "%s"\n' % (DATA / "chambre2" / "geometry" / "chambre2.rad"))
-    result = simulate.run(simulate.KernelScene(load_scene(tmp_path / "s.toml")), 50_000, seed=1, threads=2)
+    result = simulate.run(simulate.KernelScene(load_scene(tmp_path / "s.toml"), "weighted"), 50_000, seed=1, threads=2)
     escaped = result.fate[-3, 0]            # rows: materials, escaped, cut, lost
     assert 0.6 < escaped / 50_000 < 0.9
 

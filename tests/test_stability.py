@@ -244,7 +244,7 @@ _A01 = {}            # the mm-at-the-origin value, to show which cases are bit-i
 @pytest.mark.parametrize("row_id,case,unit,k,shift", UNITS, ids=[u[0] for u in UNITS])
 def test_units_and_distance_from_origin(tmp_path, row_id, case, unit, k, shift):
     chamber = _mirror_room(tmp_path, k, shift, unit=unit)
-    ks = simulate.KernelScene(chamber)
+    ks = simulate.KernelScene(chamber, "weighted")
     result = _run(chamber, MIRROR_N, seed=5, kscene=ks)
     value, sigma = result.sensors()[0][0, 0], result.sensors()[1][0, 0]
     _closure_ok(result, MIRROR_N)
@@ -320,7 +320,7 @@ TILT_REF = TILT_N * (_cap(95, 100) + R_MIRROR * _cap(105, 100))
 def test_large_tilted_mirror_through_origin(tmp_path):
     """The offset must scale with the hit triangle's vertices, not with |p| (~0 here)."""
     chamber = _tilted_mirror_scene(tmp_path, 50_000.0)
-    ks = simulate.KernelScene(chamber)
+    ks = simulate.KernelScene(chamber, "weighted")
     s = _run(chamber, TILT_N, seed=5, kscene=ks).sensors()
     # power: the same rule with an offset 32x smaller (2^-26) -- the scale a |p|-relative rule gives
     # near the origin here (|p| + |o| ~ 100 mm vs |v| = 50 m) -- self-intersects
@@ -343,7 +343,7 @@ SWEEP = [2.0 ** -e for e in (27, 25, 23, 21, 19, 17, 15, 13, 11, 9)]
 @pytest.mark.parametrize("shift,first", [(0.0, 1), (1e6, 11)], ids=["origin", "1e6mm"])
 def test_offset_sweep(tmp_path, shift, first):
     chamber = _mirror_room(tmp_path, 1.0, shift)
-    ks = simulate.KernelScene(chamber)
+    ks = simulate.KernelScene(chamber, "weighted")
     lamp = [m.name for m in chamber.materials].index("lamp")
 
     def odd(r):      # photons ending on the lamp (where they start), cut or escaped
