@@ -10,7 +10,8 @@ organ's light:
   the organ (either side) per second, divided by its one-sided area;
 * ``absorbed`` (B,) — µmol s⁻¹ absorbed by the organ, and ``absorbed_par`` (µmol s⁻¹, 400-700 nm);
 * ``par`` (µmol m⁻² s⁻¹, when the bands tile 400-700 nm) and ``rfr`` = ppfd
-  655-665 / ppfd 725-735 (when both bands are present);
+  655-665 / ppfd 725-735 (when both bands are present), without the bias of a ratio of
+  two estimates, NaN where the far red is too uncertain for that (:mod:`lpy_light.ratios`);
 * and the standard error of each (``ppfd_std``, ...).
 
 With L-Py, one line in the model's ``EndEach`` does it all
@@ -35,6 +36,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from . import simulate, units
+from .ratios import MAX_DENOMINATOR_CV
 from .errors import InputError
 from .messages import OncePerKind
 from .organs import TessellationCache, mesh_key, organ_from_mesh, plant_material
@@ -475,13 +477,14 @@ def largest_relative_sigma(kscene, result, rows, chamber) -> float:
         if par is not None:
             rel.append(np.where(par > 0, par_std / par, np.nan))
         if rfr is not None:
-            rel.append(np.where((x[:, units.band_index(chamber.bands, units.RED)] > 0)
-                                & (x[:, units.band_index(chamber.bands, units.FAR_RED)] > 0), rfr_std / rfr, np.nan))
+            lit = (x[:, units.band_index(chamber.bands, units.RED)] > 0) & (
+                x[:, units.band_index(chamber.bands, units.FAR_RED)] > 0)
+            rel.append(np.where(lit, np.where(np.isfinite(rfr), rfr_std / rfr, np.inf), np.nan))   # NaN: wait
         if not rel:
             std = np.sqrt(np.maximum(np.diagonal(cov, axis1=1, axis2=2), 0))
             rel.append(np.where(x > 0, std / x, np.nan).max(axis=1))
     rel = np.concatenate(rel)
-    rel = rel[np.isfinite(rel)]
+    rel = rel[~np.isnan(rel)]
     return float(rel.max()) if rel.size else math.inf
 
 
@@ -511,6 +514,8 @@ def organ_lights(kscene, result, organs, flux, flux_std, chamber, read=None) -> 
     scale = flux[None, :] / N / np.maximum(areas, 1e-300)[:, None]
     scale_std = flux_std[None, :] / N / np.maximum(areas, 1e-300)[:, None]
     par, par_std, rfr, rfr_std = units.par_and_rfr(inc[rows], cov, scale, scale_std, chamber.bands)
+    if rfr is not None:
+        _say_unreported_rfr(rfr, inc[rows, units.band_index(chamber.bands, units.FAR_RED)], read)
     absorbed_rows = result.n_sensors + kscene.n_receivers + rows
     cov_ab = result.covariance(absorbed_rows) if len(organs) else cov
     ab_par, ab_par_std, _, _ = units.par_and_rfr(ab[rows], cov_ab, np.broadcast_to(flux / N, scale.shape),
@@ -531,6 +536,17 @@ def organ_lights(kscene, result, organs, flux, flux_std, chamber, read=None) -> 
             light = shading_only(light)
         out[organ.key] = light
     return out
+
+
+def _say_unreported_rfr(rfr, far_red, read):
+    """Warn when target organs with far red get no R:FR (NaN): their far red's σ is too large for the ratio's
+    bias correction to hold (:data:`lpy_light.ratios.MAX_DENOMINATOR_CV`)."""
+    missing = ~np.isfinite(rfr) & (far_red > 0) & (True if read is None else np.asarray(read, bool))
+    if missing.any():
+        log.warning("R:FR not reported (NaN, an empty cell) for %d target organ(s): their far red's relative "
+                    "standard error is above %g, where a ratio's bias cannot be corrected; trace more photons "
+                    "or ask a precision on R:FR (precision={'rfr': 0.02})", int(missing.sum()),
+                    MAX_DENOMINATOR_CV)
 
 
 def shading_only(light: OrganLight) -> OrganLight:
