@@ -408,8 +408,10 @@ def _grow_parser(sub):
     g.add_argument("--steps", type=_count, default=None, help="derivation steps (default: the model's derivation length)")
     g.add_argument("--photons", type=_count, default=None,
                    help="photons per step (default: the model's; with a precision, the most a step traces)")
-    g.add_argument("--precision", type=float, default=None, metavar="REL",
-                   help="relative σ to reach on every target organ's PAR and R:FR before a step stops")
+    g.add_argument("--precision", default=None, metavar="REL|par=P,rfr=R",
+                   help="what a step waits for before it stops: a relative σ on every target organ's PAR and "
+                        "R:FR (0.04), or on what the rules read: par=0.03 (relative), rfr=0.02 (absolute), "
+                        "LO-HI=0.05 (a band's ppfd, relative), comma-separated")
     g.add_argument("--seed", type=int, default=None, help="random seed of the light model (default: the model's)")
     g.add_argument("--threads", type=int, default=None, help="threads (default: all cores)")
     g.add_argument("--out", required=True, help="output folder")
@@ -489,14 +491,18 @@ def extern_values(sets) -> dict:
 def cmd_grow(args) -> int:
     from . import light as lightmod
     from .lpy import require_lpy
+    from .precision import parse_goal
     from .results import CsvStream, atomic_write, json_text
 
     path = Path(args.model)
     if not path.is_file():
         raise InputError("L-Py model not found", path)
     check_out_dir(args.out)
-    if args.precision is not None and not 0 < args.precision < 1:
-        raise InputError("--precision must be a relative σ in (0, 1), e.g. 0.05")
+    try:
+        goal = parse_goal(args.precision)      # checked again against the model's bands
+    except InputError as exc:                  # named as the user wrote it: "--precision rfr: ..."
+        raise InputError("--" + exc.reason) from None
+    args.precision = None if goal is None else goal.given
     if args.threads is not None and not 1 <= args.threads <= 1024:
         raise InputError("--threads must be in 1..1024")
     outside = args.organs is not None

@@ -10,7 +10,8 @@ organ's light:
   the organ (either side) per second, divided by its one-sided area;
 * ``absorbed`` (B,) — µmol s⁻¹ absorbed by the organ, and ``absorbed_par`` (µmol s⁻¹, 400-700 nm);
 * ``par`` (µmol m⁻² s⁻¹, when the bands tile 400-700 nm) and ``rfr`` = ppfd
-  655-665 / ppfd 725-735 (when both bands are present);
+  655-665 / ppfd 725-735 (when both bands are present), without the bias of a ratio of
+  two estimates, NaN where the far red is too uncertain for that (:mod:`lpy_light.ratios`);
 * and the standard error of each (``ppfd_std``, ...).
 
 With L-Py, one line in the model's ``EndEach`` does it all
@@ -35,6 +36,8 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from . import simulate, units
+from .precision import parse_goal, sigma_over_goal
+from .ratios import MAX_DENOMINATOR_CV
 from .errors import InputError
 from .messages import OncePerKind
 from .organs import TessellationCache, mesh_key, organ_from_mesh, plant_material
@@ -117,10 +120,13 @@ class LightModel:
         with the Angers leaf tables (:data:`LEAF`).
     photons : int
         Photons per step (per band: all bands travel together); with ``precision``, the most a step may trace.
-    precision : float or None
-        Relative standard error to reach on every target organ's PAR and R:FR (each band's ppfd when the
-        bands give neither) before a step stops, e.g. 0.04; organs that receive no light are not waited
-        for.  None (default): exactly ``photons`` per step.
+    precision : float, mapping or None
+        What a step waits for before it stops (:mod:`lpy_light.precision`): a number, the relative standard
+        error to reach on every target organ's PAR and R:FR (each band's ppfd when the bands give neither),
+        e.g. 0.04; or the quantities the rules read, ``{"par": 0.03, "rfr": 0.02}`` (PAR relative, R:FR
+        absolute; a band label ``"655-665"``: that band's ppfd, relative).  Organs that receive no light are
+        not waited for; an organ whose far red is too uncertain for its R:FR to be reported (NaN,
+        :data:`lpy_light.ratios.MAX_DENOMINATOR_CV`) is.  None (default): exactly ``photons`` per step.
     plant_unit : str
         Unit of the plant's coordinates ('mm', 'cm', 'm', ...).
     position : (3,) or None
@@ -194,7 +200,7 @@ class LightModel:
                  threads: int | None = None, plant_unit: str = "cm", position=None, parameter: str = "light",
                  estimator: str = "nee", lamp_flux=None, normalisation_photons: int = 1_000_000,
                  progress=None, nee_picks: int = 2, targets=None, mirror_events: float | None = None,
-                 precision: float | None = None, lamp_scale=1.0, colour_top: float | None = None,
+                 precision=None, lamp_scale=1.0, colour_top: float | None = None,
                  one_sided_organs: bool = False, cone_rays: float | None = None, local_rays: float | None = None):
         self.chamber = scene if hasattr(scene, "triangles") else load_scene(resolve_scene(str(scene)))
         if plant_unit not in UNITS:
@@ -203,9 +209,7 @@ class LightModel:
         self.position = np.asarray(self._default_position() if position is None else position, dtype=float)
         self.organ_materials = dict(organs) if organs is not None else {"Leaf": LEAF}
         self.photons, self.seed, self.threads = _photons(photons), int(seed), threads
-        if precision is not None and not (isinstance(precision, (int, float)) and 0 < precision < 1):
-            raise InputError("precision must be a relative standard error in (0, 1), e.g. 0.04; got %r" % (precision,))
-        self.precision = None if precision is None else float(precision)
+        self.precision = precision          # checked against the scene's bands (:func:`precision.parse_goal`)
         self.parameter = parameter
         self.progress = progress
         self.kscene = simulate.KernelScene(self.chamber, estimator=estimator, one_sided_organs=one_sided_organs)
@@ -235,6 +239,16 @@ class LightModel:
         MODELS.append(self)
 
     # -- set-up -------------------------------------------------------------------------
+    @property
+    def precision(self):
+        """The precision goal as given: None, a number (relative σ of PAR and R:FR) or a mapping
+        (``{"par": 0.03, "rfr": 0.02}``); set it to change the goal (checked, :func:`precision.parse_goal`)."""
+        return None if self.goal is None else self.goal.given
+
+    @precision.setter
+    def precision(self, value):
+        self.goal = parse_goal(value, self.chamber.bands, self.chamber.band_labels)
+
     def _default_position(self):
         pos = getattr(self.chamber, "plant_position", None)
         if pos is not None:
@@ -335,11 +349,12 @@ class LightModel:
             self._pruned = True
         read = np.ones(len(organs), bool) if targets is None else np.array(targets, bool)
         precision_of = None
-        if self.precision is not None and read.any():
-            def precision_of(partial):
-                return largest_relative_sigma(self.kscene, partial, np.flatnonzero(read), self.chamber)
+        if self.goal is not None and read.any():
+            def precision_of(partial):          # the largest σ / goal: the goal is reached at 1
+                return step_sigma_over_goal(self.kscene, partial, np.flatnonzero(read), self.chamber, self.goal,
+                                            self.flux)
         result = simulate.run(self.kscene, n, seed=self.seed + self.step, threads=self.threads,
-                              progress=self.progress, precision=None if precision_of is None else self.precision,
+                              progress=self.progress, precision=None if precision_of is None else 1.0,
                               precision_of=precision_of)
         if result.interrupted:
             raise KeyboardInterrupt      # Ctrl-C ends the growth (cmd_grow keeps the steps done), not one step
@@ -492,29 +507,13 @@ def _factor(k) -> float:
     return k
 
 
-def largest_relative_sigma(kscene, result, rows, chamber) -> float:
-    """The largest relative σ among organs ``rows`` (indices into the step's organs): of PAR and R:FR where
-    the bands give them, else of each band's incident photons; organs with no light yet are not counted."""
+def step_sigma_over_goal(kscene, result, rows, chamber, goal, flux) -> float:
+    """The largest σ / goal among organs ``rows`` (indices into the step's organs) for the quantities ``goal``
+    asks (:func:`lpy_light.precision.sigma_over_goal`; ≤ 1: reached), from a run's photons so far."""
     r = kscene.n_sensors + kscene.n_chamber_receivers + np.asarray(rows)
     if len(r) == 0 or result.photons < 2:
         return math.inf
-    x = result.tally[r]
-    cov = result.covariance(r)
-    ones = np.ones_like(x)
-    par, par_std, rfr, rfr_std = units.par_and_rfr(x, cov, ones, np.zeros_like(x), chamber.bands)
-    rel = []
-    with np.errstate(divide="ignore", invalid="ignore"):
-        if par is not None:
-            rel.append(np.where(par > 0, par_std / par, np.nan))
-        if rfr is not None:
-            rel.append(np.where((x[:, units.band_index(chamber.bands, units.RED)] > 0)
-                                & (x[:, units.band_index(chamber.bands, units.FAR_RED)] > 0), rfr_std / rfr, np.nan))
-        if not rel:
-            std = np.sqrt(np.maximum(np.diagonal(cov, axis1=1, axis2=2), 0))
-            rel.append(np.where(x > 0, std / x, np.nan).max(axis=1))
-    rel = np.concatenate(rel)
-    rel = rel[np.isfinite(rel)]
-    return float(rel.max()) if rel.size else math.inf
+    return sigma_over_goal(goal, result.tally[r], result.covariance(r), flux, chamber.bands, chamber.band_labels)
 
 
 def organ_lights(kscene, result, organs, flux, flux_std, chamber, read=None) -> dict:
@@ -543,6 +542,8 @@ def organ_lights(kscene, result, organs, flux, flux_std, chamber, read=None) -> 
     scale = flux[None, :] / N / np.maximum(areas, 1e-300)[:, None]
     scale_std = flux_std[None, :] / N / np.maximum(areas, 1e-300)[:, None]
     par, par_std, rfr, rfr_std = units.par_and_rfr(inc[rows], cov, scale, scale_std, chamber.bands)
+    if rfr is not None:
+        _say_unreported_rfr(rfr, inc[rows, units.band_index(chamber.bands, units.FAR_RED)], read)
     absorbed_rows = result.n_sensors + kscene.n_receivers + rows
     cov_ab = result.covariance(absorbed_rows) if len(organs) else cov
     ab_par, ab_par_std, _, _ = units.par_and_rfr(ab[rows], cov_ab, np.broadcast_to(flux / N, scale.shape),
@@ -568,6 +569,17 @@ def organ_lights(kscene, result, organs, flux, flux_std, chamber, read=None) -> 
                         organ.key, organ.module or "organ", areas[i])
         out[organ.key] = light
     return out
+
+
+def _say_unreported_rfr(rfr, far_red, read):
+    """Warn when target organs with far red get no R:FR (NaN): their far red's σ is too large for the ratio's
+    bias correction to hold (:data:`lpy_light.ratios.MAX_DENOMINATOR_CV`)."""
+    missing = ~np.isfinite(rfr) & (far_red > 0) & (True if read is None else np.asarray(read, bool))
+    if missing.any():
+        log.warning("R:FR not reported (NaN, an empty cell) for %d target organ(s): their far red's relative "
+                    "standard error is above %g, where a ratio's bias cannot be corrected; trace more photons "
+                    "or ask a precision on R:FR (precision={'rfr': 0.02})", int(missing.sum()),
+                    MAX_DENOMINATOR_CV)
 
 
 def shading_only(light: OrganLight) -> OrganLight:

@@ -22,7 +22,8 @@ simulation terms is ``photons / (N · area)``.  To give it units we need how man
 
 Derived quantities (per sensor or organ): PAR = sum of the bands inside
 400-700 nm when they tile it; R:FR = ppfd(655-665) / ppfd(725-735) (the
-red:far-red ratio of Smith, 1982 / Sager et al., 1988, on SEC2's bands).
+red:far-red ratio of Smith, 1982 / Sager et al., 1988, on SEC2's bands), without
+the first-order bias of a ratio of two estimates (:mod:`lpy_light.ratios`).
 """
 from __future__ import annotations
 
@@ -34,6 +35,8 @@ import numpy as np
 
 from .errors import InputError
 from .optical import Spectrum, _text_lines
+from . import ratios
+from .ratios import MAX_DENOMINATOR_CV
 
 log = logging.getLogger("lpy_light")
 
@@ -152,6 +155,11 @@ def par_columns(bands):
     return [i for _, _, i in inside]
 
 
+#: how R:FR is computed (summary.json): :func:`lpy_light.ratios.corrected_ratio`
+RFR_HOW = ("ppfd(red) / ppfd(far red) without its first-order bias (delta method on the bands' covariance, "
+           "docs/physics.md); empty where the far red's relative sigma exceeds %g" % MAX_DENOMINATOR_CV)
+
+
 def derived_description(bands) -> dict:
     """What ``sensors_derived.csv`` holds for these bands (for summary.json): PAR's bands, R:FR's two bands."""
     out = {}
@@ -160,19 +168,8 @@ def derived_description(bands) -> dict:
         out["par"] = {"bands": ["%g-%g" % tuple(bands[i]) for i in cols],
                       "how": "sum of the bands' ppfd that tile 400-700 nm, µmol m-2 s-1"}
     if band_index(bands, RED) is not None and band_index(bands, FAR_RED) is not None:
-        out["r_fr"] = {"red": "%g-%g" % RED, "far_red": "%g-%g" % FAR_RED, "how": "ppfd(red) / ppfd(far red)"}
+        out["r_fr"] = {"red": "%g-%g" % RED, "far_red": "%g-%g" % FAR_RED, "how": RFR_HOW}
     return out
-
-
-def red_far_red(value, std, bands):
-    """R:FR = value[:, red] / value[:, far-red] and its σ, or (None, None) without both bands."""
-    r, f = band_index(bands, RED), band_index(bands, FAR_RED)
-    if r is None or f is None:
-        return None, None
-    with np.errstate(divide="ignore", invalid="ignore"):
-        ratio = value[:, r] / value[:, f]
-        rel = np.sqrt((std[:, r] / value[:, r]) ** 2 + (std[:, f] / value[:, f]) ** 2)
-    return ratio, ratio * rel
 
 
 def par_and_rfr(x, cov, scale, scale_std, bands):
@@ -182,7 +179,9 @@ def par_and_rfr(x, cov, scale, scale_std, bands):
     ``scale`` (S, B) the factor turning a tally into µmol m⁻² s⁻¹ (e.g.
     flux / (N · area)) and ``scale_std`` its σ (independent of the tallies).
     Returns ``par, par_std, rfr, rfr_std``, each (S,) or None when the bands
-    do not allow it.
+    do not allow it.  R:FR is the ratio without its first-order bias, NaN where
+    the far red's relative σ exceeds :data:`lpy_light.ratios.MAX_DENOMINATOR_CV`
+    or it has no far red (:func:`lpy_light.ratios.corrected_ratio`).
     """
     par = par_std = rfr = rfr_std = None
     cols = par_columns(bands)
@@ -194,11 +193,13 @@ def par_and_rfr(x, cov, scale, scale_std, bands):
         par_std = np.sqrt(np.maximum(var, 0.0))
     r, f = band_index(bands, RED), band_index(bands, FAR_RED)
     if r is not None and f is not None:
+        tallies = x[:, r], x[:, f], cov[:, r, r], cov[:, f, f], cov[:, r, f], scale[:, r], scale[:, f]
+        if not ratios.correcting():             # benchmarks measuring the bias only (ratios.uncorrected)
+            rfr, rfr_std = ratios.plain_ratio(*tallies, scale_std[:, r], scale_std[:, f])
+            return par, par_std, rfr, rfr_std
         with np.errstate(divide="ignore", invalid="ignore"):
-            rfr = (x[:, r] * scale[:, r]) / (x[:, f] * scale[:, f])
-            rel2 = (cov[:, r, r] / x[:, r] ** 2 + cov[:, f, f] / x[:, f] ** 2 - 2 * cov[:, r, f] / (x[:, r] * x[:, f])
-                    + (scale_std[:, r] / scale[:, r]) ** 2 + (scale_std[:, f] / scale[:, f]) ** 2)
-            rfr_std = np.abs(rfr) * np.sqrt(np.maximum(rel2, 0.0))
+            cv2 = (scale_std / scale) ** 2
+        rfr, rfr_std, _ = ratios.corrected_ratio(*tallies, cv2[:, r], cv2[:, f])
     return par, par_std, rfr, rfr_std
 
 

@@ -118,5 +118,4 @@ def test_angers_ppfd_units_and_derived(tmp_path):
             assert len(derived) == 240 and {"par", "par_std", "r_fr", "r_fr_std"} <= set(derived[0])
             assert np.mean([float(r["par"]) for r in derived]) == pytest.approx(flux[:9].sum(), rel=1e-9)
             assert summary["derived"]["par"]["bands"][0] == "400-445" and len(summary["derived"]["par"]["bands"]) == 9
-            assert summary["derived"]["r_fr"] == {"red": "655-665", "far_red": "725-735",
-                                                  "how": "ppfd(red) / ppfd(far red)"}
+            assert summary["derived"]["r_fr"] == {"red": "655-665", "far_red": "725-735", "how": units.RFR_HOW}
