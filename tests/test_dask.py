@@ -21,7 +21,7 @@ import pytest
 
 distributed = pytest.importorskip("distributed")
 
-from lpy_light import cli, cluster, simulate, sweep  # noqa: E402
+from lpy_light import cli, cluster, grow, simulate, sweep  # noqa: E402
 from lpy_light.errors import InputError  # noqa: E402
 from lpy_light.scene import load_scene  # noqa: E402
 
@@ -177,7 +177,7 @@ def test_grid_of_values():
     argv = tasks[1].argv
     assert argv[0] == "grow" and argv[1].endswith("rose.lpy") and argv[2:4] == ["--steps", "3"]
     assert ["--set", "PAR_MIN=20"] == argv[argv.index("--set"):argv.index("--set") + 2] and "SEED=2" in argv
-    assert cli.extern_values(["PAR_MIN=20", "RFR=0.8", "SCENE=angers-12bands"]) == {
+    assert grow.extern_values(["PAR_MIN=20", "RFR=0.8", "SCENE=angers-12bands"]) == {
         "PAR_MIN": 20, "RFR": 0.8, "SCENE": "angers-12bands"}
 
 
