@@ -71,19 +71,21 @@ def _parser() -> argparse.ArgumentParser:
                         "a scheduler's address (tls://host:8786) or scheduler file (.json); "
                         "needs pip install 'lpy-light[dask]' (docs/scaling.md)")
     nee = ESTIMATORS["nee"].settings
-    r.add_argument("--nee-picks", type=int, default=nee.picks, metavar="K",
-                   help="with --estimator nee: targets per next event, drawn at random (default %d; 0 = all)"
-                        % nee.picks)
-    r.add_argument("--nee-images", type=float, default=nee.images, metavar="K",
-                   help="with --estimator nee: next events through a perfect mirror per vertex, on average (default "
-                        "%g; 0 = none: light whose last bounce is specular is then counted)" % nee.images)
-    r.add_argument("--nee-images2", type=float, default=nee.images2, metavar="K",
-                   help="with --estimator nee: next events through two perfect mirrors per vertex, on average "
-                        "(default %g; 0 = none: light after two specular bounces is then counted)" % nee.images2)
-    r.add_argument("--nee-zones", type=float, default=nee.zones, metavar="K",
+    r.add_argument("--nee-picks", type=int, default=None, metavar="K",
+                   help="with next events: targets per next event, drawn at random (default: the estimator's, nee "
+                        "%d; 0 = all)" % nee.picks)
+    r.add_argument("--nee-images", type=float, default=None, metavar="K",
+                   help="with next events: next events through a perfect mirror per vertex, on average (default: "
+                        "the estimator's, nee %g; 0 = none: light whose last bounce is specular is then counted)"
+                        % nee.images)
+    r.add_argument("--nee-images2", type=float, default=None, metavar="K",
+                   help="with next events: next events through two perfect mirrors per vertex, on average "
+                        "(default: the estimator's, nee %g; 0 = none: light after two specular bounces is then "
+                        "counted)" % nee.images2)
+    r.add_argument("--nee-zones", type=float, default=None, metavar="K",
                    help="with --estimator nee: two-step next events per vertex through the surface right beside a "
-                        "disc sensor (within 4 radii of a wall or table), on average (default %g; 0 = none: that "
-                        "light then comes only from the photons that land there)" % nee.zones)
+                        "disc sensor (within 4 radii of a wall or table), on average (default: the estimator's, nee "
+                        "%g; 0 = none: that light then comes only from the photons that land there)" % nee.zones)
     r.add_argument("--no-nee-control", action="store_true",
                    help="with --estimator nee: no control variate (each sensor's point-source value deposited at "
                         "every vertex, picks carrying only the difference); for comparisons")
@@ -128,9 +130,11 @@ def _sweep_parser(sub):
 
 
 def nee_options(args) -> dict:
-    """The next-event settings the command line sets (``--nee-*``), checked, each error naming its option."""
-    out = {"picks": args.nee_picks, "images": args.nee_images, "images2": args.nee_images2, "zones": args.nee_zones,
-           "control": not args.no_nee_control}
+    """The next-event settings the command line sets (the ``--nee-*`` given; the others stay the estimator's),
+    checked, each error naming its option."""
+    given = {"picks": args.nee_picks, "images": args.nee_images, "images2": args.nee_images2, "zones": args.nee_zones,
+             "control": False if args.no_nee_control else None}
+    out = {name: value for name, value in given.items() if value is not None}
     for name, value in out.items():
         try:
             NextEventSettings(**{name: value})
