@@ -23,6 +23,7 @@ from lpy_light import simulate
 from lpy_light.kernel.tallies import N_COUNTERS
 from lpy_light.materials import Material
 from lpy_light.organs import organ_from_mesh, plant_material
+from lpy_light.estimators import ESTIMATORS
 from lpy_light.scene import Physics, load_scene
 from scenes import box, rad_polygon, rectangle_to_disc_fraction, write_scene
 
@@ -676,6 +677,7 @@ class _FakeScene:
     """Stands for a KernelScene: ``trace`` returns made-up chunk sums, known exactly, at 1e10-photon magnitudes."""
 
     n_rows, n_bands, n_sensors, n_receivers, estimator = 5, 2, 2, 0, "weighted"
+    settings = ESTIMATORS["weighted"].settings
     materials = [Material("wall", "plastic", np.zeros((5, 2)))]
     emit_nee = np.zeros(0, np.uint8)
 
