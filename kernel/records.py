@@ -21,9 +21,6 @@ import numpy as np
 DIFFUSE_R, SPECULAR_R, DIFFUSE_T, SPECULAR_T, ABSORB = 0, 1, 2, 3, 4
 N_EVENTS = 5
 
-# emitter element kinds (lpy_light.emitters)
-EMIT_LINE, EMIT_TRIANGLE, EMIT_CYLINDER, EMIT_POINT, EMIT_SPHERE = 0, 1, 2, 3, 4
-
 # transparent sensor kinds (lpy_light.sensors)
 SENSOR_DISC, SENSOR_QUAD = 0, 1
 
@@ -68,7 +65,7 @@ Materials = namedtuple("Materials", [
 ])
 
 Emitters = namedtuple("Emitters", [
-    "kind",          # (E,) int32: EMIT_*
+    "kind",          # (E,) int32: kernel.emission.EMIT_* (each kind one sampling function there)
     "data",          # (E, 3, 3) float64: the element (end points and radius, a triangle, a centre and radius)
     "cdf",           # (E,) float64: cumulative share of the emitted power
 ])

@@ -26,7 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .geometry import triangle_areas
-from .kernel.records import EMIT_CYLINDER, EMIT_LINE, EMIT_POINT, EMIT_SPHERE, EMIT_TRIANGLE  # the kinds, once
+from .kernel.emission import EMIT_CYLINDER, EMIT_LINE, EMIT_POINT, EMIT_SPHERE, EMIT_TRIANGLE  # the kinds, once
 from .kernel.vectors import norm as vnorm
 
 
