@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from lpy_light import simulate, validation
+from lpy_light.estimators import DEFAULT_ESTIMATOR, ESTIMATORS
 
 FIELDS = ["scene", "variant", "estimator", "photons", "seconds", "photons_per_s", "reference", "within_4sigma",
           "bias", "bias_std", "rms", "rms_noise", "max_abs_z", "rms_ours"]
@@ -76,7 +77,7 @@ def main(argv=None):
     ap.add_argument("--photons", nargs="+", type=float, default=None,
                     help="photon counts (default 1e6 1e7; with --ablations 1e7)")
     ap.add_argument("--full", action="store_true", help="add 1e8 photons (1-3 min per scene on 2 threads)")
-    ap.add_argument("--estimator", choices=simulate.ESTIMATORS, default="nee",
+    ap.add_argument("--estimator", choices=tuple(ESTIMATORS), default=DEFAULT_ESTIMATOR,
                     help="nee (default: fastest to a given precision on these sensors), weighted or analog")
     ap.add_argument("--ablations", action="store_true", help="run the physics variants (lpy_light.validation.VARIANTS)")
     ap.add_argument("--variants", nargs="+", default=None, help="with --ablations: only these variants")

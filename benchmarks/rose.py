@@ -22,6 +22,7 @@ import time
 import numpy as np
 import trimesh
 
+from lpy_light.estimators import DEFAULT_ESTIMATOR, ESTIMATORS
 from lpy_light.light import LightModel
 
 LEAF_MATERIAL = ("FeuilleVieille_Sup", "FeuilleVieille_Inf")
@@ -151,7 +152,7 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--photons", type=float, default=300_000)
     ap.add_argument("--steps", type=int, default=5)
-    ap.add_argument("--estimator", default="nee", choices=("nee", "weighted", "analog"))
+    ap.add_argument("--estimator", default=DEFAULT_ESTIMATOR, choices=tuple(ESTIMATORS))
     ap.add_argument("--threads", type=int, default=None)
     ap.add_argument("--targets", nargs="+", default=["Leaf", "Bud"],
                     help="modules next events aim at (default: Leaf Bud, as lsystems/rose.lpy; 'all': every organ)")
