@@ -290,7 +290,9 @@ def test_light_added_by_hand_written_by_position():
     leaves = [m for m in lstring if m.name == "Leaf"]
     buds = [m for m in lstring if m.name == "Bud"]
     assert leaves and buds
-    assert all(m[3].module == "Leaf" and m[3].par >= 0 and m[3].absorbed_par >= 0 for m in leaves)
-    assert sum(m[3].par > 20 for m in leaves) >= 7             # the youngest leaves hide in the flower bud
+    lit = [m for m in leaves if m[3] is not None]       # None: a leaf no sample reached (inside the flower bud)
+    assert len(lit) >= len(leaves) - 2
+    assert all(m[3].module == "Leaf" and m[3].par >= 0 and m[3].absorbed_par >= 0 for m in lit)
+    assert sum(m[3].par > 20 for m in lit) >= 7                # the youngest leaves hide in the flower bud
     assert all(m[2].module == "Bud" and m[2].par > 0 for m in buds)
-    assert lsys.context()["ABSORBED_PAR"] == pytest.approx(sum(m[3].absorbed_par for m in leaves))
+    assert lsys.context()["ABSORBED_PAR"] == pytest.approx(sum(m[3].absorbed_par for m in lit))
