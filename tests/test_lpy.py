@@ -96,19 +96,6 @@ def test_rose_grows_with_its_light_and_pictures(tmp_path):
     assert len(warnings) == len(set(w.split(":")[2][:40] for w in warnings))
 
 
-@pytest.fixture
-def utf8_locale():
-    """The process in a UTF-8 locale (a modeller's desktop), put back as it was after the test."""
-    import locale
-    saved = locale.setlocale(locale.LC_ALL)
-    try:
-        locale.setlocale(locale.LC_ALL, "C.UTF-8")
-    except locale.Error:
-        pytest.skip("no C.UTF-8 locale on this machine")
-    yield
-    locale.setlocale(locale.LC_ALL, saved)
-
-
 @pytest.mark.lpy
 @lpy
 def test_lit_steps_leave_the_locale_and_utf8_files_as_they_were(utf8_locale, tmp_path):

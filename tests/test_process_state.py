@@ -19,17 +19,6 @@ def c_setlocale_c():
     LIBC.setlocale(LC_ALL, b"C")
 
 
-@pytest.fixture
-def utf8_locale():
-    saved = current_locale()
-    try:
-        locale.setlocale(locale.LC_ALL, "C.UTF-8")
-    except locale.Error:
-        pytest.skip("no C.UTF-8 locale on this machine")
-    yield
-    locale.setlocale(locale.LC_ALL, saved)
-
-
 def test_a_c_library_call_changes_the_locale_and_the_guard_puts_it_back(utf8_locale, tmp_path):
     c_setlocale_c()
     assert locale.getpreferredencoding(False) == "ANSI_X3.4-1968"       # what a modeller's process suffered
