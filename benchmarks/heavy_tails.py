@@ -58,9 +58,9 @@ def main():
 
     def sigma2n(k):
         """σ²·N (relative) of each sensor from the first k chunks: the products are per batch of
-        ``nee_batch`` photons (the control variate's), so N / (batches − 1) · (Q − T² / N) as ``Result``."""
+        ``settings.batch`` photons (the control variate's), so N / (batches − 1) · (Q − T² / N) as ``Result``."""
         n = k * chunk
-        batches = n / max(int(getattr(ks, "nee_batch", 1) or 1), 1)
+        batches = n / max(ks.settings.batch, 1)
         t, s = sums[:k].sum(axis=0), sq[:k].sum(axis=0)
         var = n / (batches - 1.0) * np.maximum(s - t * t / n, 0.0)
         return var / np.maximum(t, 1e-300) ** 2 * n

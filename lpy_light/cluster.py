@@ -5,7 +5,7 @@ order and keeps ``--precision``, the progress line and interrupts, as it does fo
 threads (:class:`lpy_light.simulate.LocalThreads`) — so a run on a cluster gives bitwise the
 numbers of a local run with the same seed and photons.
 
-The chamber travels once per worker, not with each chunk: the :class:`~lpy_light.simulate.KernelScene`
+The chamber travels once per worker, not with each chunk: the :class:`~lpy_light.kernel_scene.KernelScene`
 is pickled (without its Embree scene: its settings, the pruning of next events and the organs come
 as they are here), registered as a worker plugin under its content digest, and every worker —
 also one that joins or restarts during the run — keeps it; a worker builds its Embree scene at its
@@ -221,7 +221,7 @@ def _keep_latest(table: OrderedDict):
 
 
 class SceneOnWorkers(_WorkerPlugin):
-    """A worker plugin carrying one pickled :class:`~lpy_light.simulate.KernelScene` (``state``) to every
+    """A worker plugin carrying one pickled :class:`~lpy_light.kernel_scene.KernelScene` (``state``) to every
     worker, now and joining later, filed under ``digest``; built at a worker's first chunk."""
 
     def __init__(self, digest: str, state: bytes):

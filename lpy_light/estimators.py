@@ -1,7 +1,7 @@
 """The estimators, registered once: each one's name, what it does, and its settings as one frozen record.
 
 A run's estimator is chosen by name (``lpy-light run --estimator``, ``LightModel(estimator=...)``,
-:class:`lpy_light.simulate.KernelScene`), always from :data:`ESTIMATORS`, with :data:`DEFAULT_ESTIMATOR` the default
+:class:`lpy_light.kernel_scene.KernelScene`), always from :data:`ESTIMATORS`, with :data:`DEFAULT_ESTIMATOR` the default
 everywhere.  Its next-event settings are a :class:`NextEventSettings`: checked where they are built (a misspelt or
 out-of-range setting is an :class:`~lpy_light.errors.InputError` naming it), never changed in place -- a
 changed setting is a new record (:meth:`NextEventSettings.replace`, :meth:`KernelScene.configure`).
@@ -47,7 +47,7 @@ class NextEventSettings:
         Organs: picks by importance (:mod:`lpy_light.kernel.importance`) and organ zone events.
     organ_zones : float or None
         Two-step next events through the organ surface beside a bud (None: by the buds' kind,
-        :func:`lpy_light.simulate.organ_zone_rate`).
+        :func:`lpy_light.kernel_scene.organ_zone_rate`).
     zone_walk : int
         Short legs an organ zone event walks on inside the bud's zone, at most.
     open_zones : bool
@@ -57,7 +57,7 @@ class NextEventSettings:
         pilot; False: ``picks`` at every vertex.
     cones, local : float or None
         Rays into the cones of the organ clusters a vertex is far from; local rays to the large organs near it
-        (None: by the number of organ targets, :func:`lpy_light.simulate.cones_for`, ``local_for``).
+        (None: by the number of organ targets, :func:`lpy_light.kernel_scene.cones_for`, ``local_for``).
     facing : bool
         Next events to a closed organ draw their point among its triangles facing the vertex
         (:func:`lpy_light.kernel.nee.facing_triangle`); False, an ablation: over the whole mesh.

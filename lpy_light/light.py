@@ -120,7 +120,7 @@ class LightModel:
         from, the first organ met tallied (:mod:`lpy_light.kernel.cones`; at a vertex whose photon's mean weight
         × the cones' share of its light is 0.5, more or fewer with it up to 4x, a quarter of that near a
         cluster; 0: picks serve those organs too).  Default None: 10 for scenes of 1,000 organ
-        targets or more (a canopy), else 0 (:func:`lpy_light.simulate.cones_for`: a single plant's few hundred
+        targets or more (a canopy), else 0 (:func:`lpy_light.kernel_scene.cones_for`: a single plant's few hundred
         targets gain less than the rays cost).  Leaves and other large targets
         get their light from across the chamber this way; a pick is one target in n, a cone ray is not, and it
         does not aim at an organ hidden behind others.  Rose (``benchmarks/rose.py --photons 1.15e6``): leaves'
@@ -132,7 +132,7 @@ class LightModel:
         next events and picks (:func:`lpy_light.kernel.cones.local_events`; 0: own events and picks serve
         them; at a vertex whose photon's mean weight is 0.5, more or fewer with it up to 4x).  Default None: 8
         for scenes of 1,000 organ targets or more (a canopy), else 0
-        (:func:`lpy_light.simulate.local_for`).  Amid a canopy a vertex on a leaf is near dozens of leaves; rays
+        (:func:`lpy_light.kernel_scene.local_for`).  Amid a canopy a vertex on a leaf is near dozens of leaves; rays
         meet those it sees, in proportion to its light.  16 roses: the cost to leaves' p90 3 % 67 → 48 CPU s (12
         cone rays); on a single rose the own events serve the few leaves around a vertex as well or better.
     lamp_scale : float or mapping

@@ -280,7 +280,7 @@ GRID_ROOM = (ROOM.replace("7 0.1 0.1 0.1 0 0 0.7 0.4", "7 0.1 0.1 0.1 0 0 0.7 0"
 
 def test_control_variate_is_unbiased_and_lowers_the_variance(tmp_path):
     """γ of every sensor at every vertex, with each pick carrying only the difference to γ
-    (``nee_control``): the same sensor values as plain picks (|z| < 4, independent seeds), at less than
+    (``settings.control``): the same sensor values as plain picks (|z| < 4, independent seeds), at less than
     0.6x their relative variance for equal photons.  A pick that forgot to subtract its γ would add
     Σγ ≈ the whole direct light once more and fail the first check by hundreds of σ."""
     chamber = load_scene(write_scene(tmp_path, GRID_ROOM, GRID))
@@ -391,7 +391,7 @@ def test_zones_beside_discs_are_built_where_a_disc_is_near_a_plane(tmp_path):
 
 
 def test_zone_events_are_unbiased_and_lower_the_variance(tmp_path):
-    """Two-step next events through the wall beside a disc (``nee_zones``) give the same values as the
+    """Two-step next events through the wall beside a disc (``settings.zones``) give the same values as the
     discs' own events from photons that land there (combined and per disc |z| < 4, independent seeds), at
     less than 0.3x their relative variance for discs over the wall (measured 0.03-0.08).  Forgetting to
     skip the own event of a photon that lands in a zone counts that light twice: combined z ≈ -10."""

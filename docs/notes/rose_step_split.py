@@ -8,7 +8,7 @@ on 2 cores asks ≤ 18):
 
     .venv/bin/python docs/notes/rose_step_split.py run 1.15e6 2 [knob=value ...]
 
-``knob=value`` sets a LightModel or KernelScene attribute first (e.g. ``nee_cones=4``, ``mirror_events=0.0``).
+``knob=value`` sets a LightModel attribute or a next-event setting first (e.g. ``cones=4``, ``mirror_events=0.0``).
 ``DUMP=/tmp/x`` saves the organs' incident photons per band and their covariances (``/tmp/x.npz``: no lamp
 normalisation, which a masked kernel would change).
 
@@ -43,8 +43,10 @@ def run(photons, reps, knobs):
                        organs={"Leaf": LEAF_MATERIAL, "Internode": LEAF_MATERIAL[0], "Bud": LEAF_MATERIAL[0]})
     for knob in knobs:
         name, value = knob.split("=")
-        owner = model if hasattr(model, name) and not hasattr(model.kscene, name) else model.kscene
-        setattr(owner, name, eval(value))
+        if hasattr(model, name):
+            setattr(model, name, eval(value))
+        else:
+            model.kscene.configure(**{name: eval(value)})
     plant = rose(4, 4)
     organs = model.organs_from_meshes(plant)
     kept = {}
