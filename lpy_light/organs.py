@@ -134,6 +134,7 @@ class TessellationCache:
     def __init__(self):
         self._items: dict = {}
         self._used: set = set()
+        self.faces: dict = {}     # topology key -> faces, for lpy._tessellate (kept: a handful of topologies)
         self.hits = 0
         self.misses = 0
 

@@ -139,6 +139,46 @@ def test_plantgl_calls_that_set_the_locale_are_guarded(utf8_locale, tmp_path):
 
 
 @pytest.mark.lpy
+@lpy
+def test_meshes_read_fast_are_plantgls_own():
+    """The triangles read from an ``Index3Array``'s text, and the faces reused between shapes of one topology
+    (a growing internode), are those PlantGL's own iteration gives, for every primitive the turtle makes and
+    for a leaf swept along a curve; a shape whose triangles differ from its topology's is not given them."""
+    import numpy as np
+    import openalea.plantgl.all as pgl
+    from lpy_light import lpy as adapter
+    from lpy_light.organs import TessellationCache
+    V = pgl.Vector3
+    path = pgl.Polyline([V(0, 0, 0), V(0, 0.5, 1), V(0, 2, 1.5), V(0, 3, 1)])
+    profile = pgl.Polyline2D([pgl.Vector2(-0.5, 0), pgl.Vector2(0, 0.1), pgl.Vector2(0.5, 0)])
+    shapes = [pgl.Translated(V(1, 2, 3), pgl.Oriented(V(1, 0, 0), V(0, 1, 0), pgl.Cylinder(r, h, False, 8)))
+              for r, h in ((0.1, 1.0), (0.2, 3.5), (0.05, 0.01))]
+    shapes += [pgl.Translated(V(0, 0, 1), pgl.Sphere(0.3, 8, 6)), pgl.Frustum(0.5, 2.0, 0.3, True, 12),
+               pgl.Cone(0.4, 1.0, True, 10), pgl.Disc(1.0, 16), pgl.Box(V(1, 2, 3)),
+               pgl.Cylinder(0.1, 1.0, True, 8), pgl.Extrusion(path, profile), pgl.Sphere(1.0, 200, 200)]
+    cache = TessellationCache()
+    for geometry in shapes:
+        shape = pgl.Shape(geometry)
+        t = pgl.Tesselator()
+        shape.apply(t)
+        own = np.array([tuple(f) for f in t.result.indexList], dtype=np.int64)
+        assert np.array_equal(adapter._faces(t.result.indexList), own), type(geometry).__name__
+        key = adapter.geometry_key(geometry)
+        points, faces = adapter._tessellate(shape, pgl, adapter.topology_key(key), cache.faces)
+        assert np.array_equal(faces, own), type(geometry).__name__
+        assert len(points) == len(t.result.pointList)
+    # the three internodes share one face list; the solid cylinder (caps) has its own
+    thin = [adapter.topology_key(adapter.geometry_key(g)) for g in shapes[:3]]
+    assert thin[0] == thin[1] == thin[2] != adapter.topology_key(adapter.geometry_key(shapes[-3]))
+    # a cached topology whose counts differ is not reused (e.g. a tessellator that dropped a triangle)
+    bogus = next(iter(cache.faces))
+    cache.faces[bogus] = adapter._Faces(np.zeros((3, 3), dtype=np.int64), 3)
+    shape = pgl.Shape(shapes[0])
+    points, faces = adapter._tessellate(shape, pgl, bogus, cache.faces)
+    assert len(faces) > 3
+
+
+@pytest.mark.lpy
 @pytest.mark.slow
 @lpy
 def test_the_locale_after_30_lit_steps_of_each_model_is_the_one_before(utf8_locale, tmp_path):
