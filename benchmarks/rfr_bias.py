@@ -17,6 +17,12 @@ red, which falls as 1/√N where the σ is honest (a heavy tail makes it grow: d
                                             [--stage 4 --stages 4] [--csv docs/efficiency/rfr_bias.csv]
                                             [--chart docs/efficiency/rfr_bias.png] [--uncorrected]
 
+``--lpy lsystems/rose.lpy`` lights the plant a real L-Py model grows (``--steps`` steps at ``--grow-photons`` a
+step) instead, with the model's own ``LightModel``: its materials, targets and settings (rose.lpy's buds are
+opaque, the procedural rose's translucent):
+
+    .venv-lpy/bin/python benchmarks/rfr_bias.py --lpy lsystems/rose.lpy --photons 1e6 4e6 --seeds 1 2 3 4
+
 ``--uncorrected`` runs the whole benchmark inside ``ratios.uncorrected()`` (both columns then the plain
 ratio, every organ with a number): a check that the plain column is what the switch gives.
 """
@@ -49,6 +55,37 @@ def light_the_rose(photons, seeds, stage, stages, threads):
     for seed in seeds:
         for n in photons:
             model.seed, model.step = seed, 0         # every budget of a seed: the same photon streams
+            t = time.perf_counter()
+            step = model.run(organs, photons=int(n))
+            seconds[seed, n] = time.perf_counter() - t
+            lights = [light for light in step.organs.values() if light.module in KINDS]
+            out[seed, n] = {"module": np.array([light.module for light in lights]),
+                            "rfr": np.array([light.rfr for light in lights]),
+                            "rfr_std": np.array([light.rfr_std for light in lights]),
+                            "plain": np.array([light.ppfd[red] / light.ppfd[far] for light in lights]),
+                            "far_cv": np.array([light.ppfd_std[far] / light.ppfd[far] for light in lights])}
+            print("  seed %d, %.3g photons: %.1f s" % (seed, n, seconds[seed, n]), flush=True)
+    return out, seconds
+
+
+def light_a_grown_model(model_path, steps, photons, seeds, threads, grow_photons):
+    """As :func:`light_the_rose` for the plant a real L-Py model grows: ``model_path`` (e.g. ``lsystems/rose.lpy``,
+    whose ``LightModel`` is its module variable ``light``) derived ``steps`` steps at ``grow_photons`` a step, then
+    its last plant lit by the model's own ``LightModel`` at each budget and seed (no precision: the budget
+    whole).  Needs L-Py (``.venv-lpy``)."""
+    from openalea.lpy import Lsystem
+    t = time.perf_counter()
+    lsys = Lsystem(str(model_path), {"STEPS": steps, "PHOTONS": int(grow_photons), "PRECISION": None})
+    lsys.derive()
+    model = lsys.context()["light"] if "light" in lsys.context() else lsys.light
+    organs = model.last_organs
+    print("  %s grown %d steps in %.0f s: %d organs" % (model_path, steps, time.perf_counter() - t, len(organs)))
+    model.precision = None
+    red, far = model.chamber.band_labels.index("655-665"), model.chamber.band_labels.index("725-735")
+    out, seconds = {}, {}
+    for seed in seeds:
+        for n in photons:
+            model.seed, model.step = seed, 0
             t = time.perf_counter()
             step = model.run(organs, photons=int(n))
             seconds[seed, n] = time.perf_counter() - t
@@ -148,10 +185,18 @@ def main():
     ap.add_argument("--chart", default=None, help="write the chart here (e.g. docs/efficiency/rfr_bias.png)")
     ap.add_argument("--uncorrected", action="store_true",
                     help="R:FR as the plain ratio (ratios.uncorrected(): the bias left in), for comparison")
+    ap.add_argument("--lpy", default=None, metavar="MODEL",
+                    help="light the plant this .lpy model grows instead (real L-Py: run with .venv-lpy/bin/python)")
+    ap.add_argument("--steps", type=int, default=30, help="with --lpy: steps grown (default 30)")
+    ap.add_argument("--grow-photons", type=float, default=2e5, help="with --lpy: photons a step while it grows")
     args = ap.parse_args()
     photons = sorted(args.photons)
     with ratios.uncorrected() if args.uncorrected else contextlib.nullcontext():
-        runs, seconds = light_the_rose(photons, args.seeds, args.stage, args.stages, args.threads)
+        if args.lpy:
+            runs, seconds = light_a_grown_model(args.lpy, args.steps, photons, args.seeds, args.threads,
+                                                args.grow_photons)
+        else:
+            runs, seconds = light_the_rose(photons, args.seeds, args.stage, args.stages, args.threads)
     rows = budget_rows(runs, photons, args.seeds)
     print("\n%10s %6s %6s %11s %12s %14s %14s %9s %12s" % ("photons", "organs", "n", "unreported", "R:FR mean",
                                                           "plain (same)", "plain (all)", "σ median", "far σ/far"))

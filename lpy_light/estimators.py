@@ -52,6 +52,10 @@ class NextEventSettings:
         Short legs an organ zone event walks on inside the bud's zone, at most.
     open_zones : bool
         An open bud's own surface is in its zone.
+    closed_zones : bool
+        A closed bud's own surface is in its zone too (with ``open_zones``): the light that enters it through its
+        skin and bounces inside is estimated from every vertex by organ zone events, not left to the few photons
+        that land on it (their own events from the bud itself held ~85 % of a bud's far-red variance).
     pick_share : bool
         Picks to organs follow each vertex's pick share (:func:`lpy_light.kernel.nee.pick_share`), its mean from a
         pilot; False: ``picks`` at every vertex.
@@ -75,13 +79,14 @@ class NextEventSettings:
     organ_zones: float | None = None
     zone_walk: int = ZONE_WALK
     open_zones: bool = True
+    closed_zones: bool = True
     pick_share: bool = True
     cones: float | None = None
     local: float | None = None
     facing: bool = True
 
     def __post_init__(self):
-        for name in ("sensors", "receivers", "control", "importance", "open_zones", "pick_share", "facing"):
+        for name in ("sensors", "receivers", "control", "importance", "open_zones", "closed_zones", "pick_share", "facing"):
             if not isinstance(getattr(self, name), (bool, int)) or getattr(self, name) not in (0, 1):
                 raise InputError("next-event setting %r must be True or False, got %r" % (name, getattr(self, name)))
             object.__setattr__(self, name, bool(getattr(self, name)))

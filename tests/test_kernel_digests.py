@@ -163,7 +163,9 @@ def cases(tmp: Path) -> dict:
 # session -- prefetched tally rows, loops over views -- left every digest as it was); then every case with two more
 # counters (the organs' pick shares, kernel.tallies.C_PICK_SHARE: zero on sensors; the sensor cases' tallies are as
 # before, their digests without the two counters as pinned before), and the rose's with picks as many as a vertex's
-# pick share asks (kernel.nee.pick_share, twentieth session)
+# pick share asks (kernel.nee.pick_share, twentieth session); then the two rose cases with the closed buds of
+# translucent tissue (the rose's buds are a leaf's material) given their own surface in their organ zone
+# (KernelScene._own_zones, twenty-third session: their inside light from every vertex)
 PINNED = {
     "angers-weighted": "036eb93dbdf7e4cbb16323e070de78b414723ab9c0c43d82d1087d002a894081",
     "angers-nee": "6680107761b56e1d6a5c7ffcaf46aae7a662ac1d30b0991a8c4fa030a4c145ae",
@@ -175,8 +177,8 @@ PINNED = {
     "room-line-weighted": "78a8eb623f8896e764d6e179bbeac9a23296507a92da155db9eb19c91912f74c",
     "room-lambertian-nee": "3c595582268478ce82586a3f83ee069e4db2c27d60762cb72ef9c6b9eaa95a4d",
     "room-lambertian-analog": "cc89df8d5b9bd4290aa827d0fcfaab224ee1e242c05425dcd2f4942469039aff",
-    "rose-nee": "978ca571c0cf4654f6967a2d25d66be8a486de3ba71688a6b6d59a5de6e54b36",
-    "rose-cones": "07e0d79a738c2c4c21cfd38f6184ec6d414236d39b31ac0fcf820cbfdfa37665",
+    "rose-nee": "2522a14427e588283226980e6f4c2a3bddf54acb0f128a1f6db144b3641a66ff",
+    "rose-cones": "3e55b037d4ba4bda9d8920fac4461e2d89a0800b999ad14bac909a118438a2ea",
 }
 
 
