@@ -36,7 +36,7 @@ from dataclasses import replace
 import numpy as np
 
 from . import simulate, units
-from .precision import parse_goal, sigma_over_goal
+from .precision import organs_sigma_over_goal, parse_goal, sigma_over_goal
 from .errors import InputError
 from .messages import OncePerKind
 from .organ_light import (NOT_REACHED, ORGAN_COLUMNS, OrganLight, StepResult, for_rules, not_reached, organ_lights,
@@ -318,6 +318,8 @@ class LightModel:
         if self.precision is not None:
             step.extra["precision"] = self.precision
             step.extra["precision_reached"] = bool(result.extra.get("precision_reached", not read.any()))
+            if not step.extra["precision_reached"]:
+                self._warn_precision_short(result, organs, read)
         if outside:
             step.extra["outside_chamber"] = outside
         compiled = getattr(self.kscene, "compile_seconds", 0.0) - compiled
@@ -325,6 +327,24 @@ class LightModel:
             step.extra["compile_seconds"] = compiled
         self.step += 1
         return step
+
+    def _warn_precision_short(self, result, organs, read):
+        """A step that stopped at its photon cap before the precision asked of its targets says so (once per run,
+        counted): a rule comparing those organs' numbers with a threshold reads noise, and grows differently
+        with the cap (``benchmarks/rose_bursts.py``)."""
+        rows = np.flatnonzero(read)
+        r = self.kscene.n_sensors + self.kscene.n_chamber_receivers + rows
+        ratio = organs_sigma_over_goal(self.goal, result.tally[r], result.covariance(r), self.flux, self.chamber.bands,
+                                       self.chamber.band_labels)
+        short = np.isfinite(ratio) & (ratio > 1.0)
+        if not short.any():
+            return
+        modules = sorted({organs[i].module for i in rows[short]})
+        log.warning("step %d stopped at its cap of %d photons before the precision asked (%s): %d of %d target "
+                    "organs short of it (%s), the worst at %.1fx its σ goal -- a rule that compares their numbers "
+                    "with a threshold reads that noise; more photons (photons=), or a looser precision",
+                    self.step, result.photons, _goal_text(self.precision), int(short.sum()), len(rows),
+                    ", ".join(modules), float(np.nanmax(ratio)))
 
     def _mirror_events(self) -> float:
         """Next events through a mirror per vertex: ``mirror_events``, or by default :data:`MIRROR_EVENTS`, halved
@@ -459,6 +479,13 @@ def _factor(k) -> float:
     if not (math.isfinite(k) and k >= 0):
         raise InputError("lamp_scale: expected a factor >= 0, got %r" % (k,))
     return k
+
+
+def _goal_text(precision) -> str:
+    """``{"par": 0.03, "rfr": 0.02}`` → ``"par 0.03, rfr 0.02"``; a number as it is."""
+    if hasattr(precision, "items"):
+        return ", ".join("%s %g" % (k, v) for k, v in precision.items())
+    return "%g" % precision
 
 
 def step_sigma_over_goal(kscene, result, rows, chamber, goal, flux) -> float:

@@ -124,15 +124,22 @@ def _parse_mapping(value, bands, labels) -> Goal:
 
 def sigma_over_goal(goal: Goal, x, cov, flux, bands, labels) -> float:
     """The largest σ / goal over organs and asked quantities (≤ 1: the goal is reached), or inf before any
-    light.
+    light (:func:`organs_sigma_over_goal`'s arguments)."""
+    if len(x) == 0:
+        return math.inf
+    rel = organs_sigma_over_goal(goal, x, cov, flux, bands, labels)
+    rel = rel[np.isfinite(rel)]
+    return float(rel.max()) if rel.size else math.inf
+
+
+def organs_sigma_over_goal(goal: Goal, x, cov, flux, bands, labels) -> np.ndarray:
+    """(S,) per organ, the largest σ / goal over the asked quantities (≤ 1: reached; NaN: none defined yet).
 
     ``x`` (S, B) the target organs' incident tallies so far, ``cov`` (S, B, B) their covariance between
     bands, ``flux`` (B,) the lamps' photon flux per band (PAR's weights; R:FR's factor), ``bands`` the
     scene's bands in nm (None: one band), ``labels`` their labels.  A goal that asks for PAR or R:FR where
     the bands give neither asks for every band's relative σ instead (a number's goal, as before; a mapping
     cannot ask for them there: :func:`parse_goal`)."""
-    if len(x) == 0:
-        return math.inf
     flux = np.broadcast_to(np.asarray(flux, float), x.shape[1:])
     scale = np.broadcast_to(flux, x.shape)
     par, par_std, rfr, rfr_std = units.par_and_rfr(x, cov, scale, np.zeros_like(x), bands)
@@ -154,7 +161,14 @@ def sigma_over_goal(goal: Goal, x, cov, flux, bands, labels) -> float:
                 worst.append(np.where(x[:, b] > 0, band_sigma[:, b] / x[:, b], np.nan) / sigma)
         if not worst and not isinstance(goal.given, Mapping):   # a number, and bands without PAR or R:FR:
             sigma = min(s for s, _ in goal.values())                # every band's relative σ
-            worst.append((np.where(x > 0, band_sigma / x, np.nan) / sigma).ravel())
-    rel = np.concatenate(worst)
-    rel = rel[np.isfinite(rel)]
-    return float(rel.max()) if rel.size else math.inf
+            worst.append(np.where(x > 0, band_sigma / x, np.nan) / sigma)
+    if not worst:
+        return np.full(len(x), np.nan)
+    return _row_max(np.column_stack([np.asarray(w).reshape(len(x), -1) for w in worst]))
+
+
+def _row_max(rel) -> np.ndarray:
+    """(S,) the largest finite value of each row of ``rel`` (S, K), NaN where none is finite."""
+    finite = np.isfinite(rel)
+    out = np.where(finite, rel, -np.inf).max(axis=1)
+    return np.where(finite.any(axis=1), out, np.nan)

@@ -135,3 +135,27 @@ def test_a_step_runs_until_the_asked_quantities_reach_the_goal(tmp_path):
     number = model.run(organs)
     assert number.extra["precision_reached"] and max(_sigmas(number)[::2]) <= 0.004
     assert rfr_only.photons < step.photons < number.photons, (rfr_only.photons, step.photons, number.photons)
+
+
+def test_a_step_short_of_its_precision_at_the_cap_says_so_once(tmp_path, caplog):
+    """A cap that stops a step before the precision asked: a warning naming the cap, the goal, how many target
+    organs are short of it and by how much (a rule comparing their numbers with a threshold reads noise), once per
+    run however many steps; none where the goal is reached.  Per organ σ / goal as the stop reads it."""
+    model, organs = _bud_and_leaf(tmp_path, photons=CHUNK, precision={"par": 0.0002, "rfr": 0.0005})
+    with caplog.at_level("WARNING", logger="lpy_light"):
+        for _ in range(3):
+            step = model.run(organs)
+    short = [r.getMessage() for r in caplog.records if "before the precision asked" in r.getMessage()]
+    assert not step.extra["precision_reached"] and len(short) == 1, short
+    assert "cap of %d photons" % CHUNK in short[0] and "par 0.0002, rfr 0.0005" in short[0]
+    assert "2 of 2 target organs" in short[0] and "(Bud, Leaf)" in short[0]
+    caplog.clear()
+    model.photons, model.precision = 4_000_000, {"par": 0.03}
+    with caplog.at_level("WARNING", logger="lpy_light"):
+        assert model.run(organs).extra["precision_reached"]
+    assert not [r for r in caplog.records if "before the precision asked" in r.getMessage()]
+    x = np.array([[100.0, 10.0, 20.0, 10.0], [0.0, 0.0, 0.0, 0.0]])
+    cov = np.array([np.diag([4.0, 0.25, 1.0, 0.25]), np.zeros((4, 4))])
+    per_organ = precision.organs_sigma_over_goal(precision.parse_goal({"par": 0.03}, BANDS, LABELS), x, cov,
+                                                 np.ones(4), BANDS, LABELS)
+    assert per_organ[0] == pytest.approx(np.sqrt(4 + 0.25 + 1) / 130 / 0.03) and np.isnan(per_organ[1])
