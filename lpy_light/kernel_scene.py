@@ -58,6 +58,7 @@ class KernelScene:
         self.settings = estimator_named(estimator).settings if settings is None else settings
         self.receiver_mask = None   # (R,) bool: receivers that are next-event targets (None: all; set_organs)
         self._pick_mean = {}        # the mean pick share, per organs and settings (records())
+        self.pick_pilot = PICK_PILOT  # photons of the pilot that finds it (a run of fewer photons asks fewer)
         self.compile_seconds = 0.0  # seconds spent compiling the kernel for this scene (:func:`compile_kernel`)
         tris = chamber.triangles
         area = 0.5 * np.linalg.norm(np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0]), axis=1)
@@ -358,9 +359,9 @@ class KernelScene:
         """The kernel's records of this scene as it stands (:mod:`lpy_light.kernel.records`), with the current
         settings (:attr:`settings`, the sources and mirror planes switched on): ``(Scene, NextEvents or None)``, None
         where next events have no target (``weighted``, ``analog``).  Built once per run.  With organs as
-        targets and ``settings.pick_share``, the vertices' mean pick share comes from a pilot of :data:`PICK_PILOT`
-        photons (one chunk, a fixed seed: the same for the same organs and settings, on any number of threads),
-        once per organs and settings; ``note`` as :func:`compile_kernel`'s, if the kernel compiles for it."""
+        targets and ``settings.pick_share``, the vertices' mean pick share comes from a pilot of :attr:`pick_pilot`
+        (:data:`PICK_PILOT`) photons (one chunk, a fixed seed: the same for the same organs and settings, on any
+        number of threads), once per organs and settings; ``note`` as :func:`compile_kernel`'s, if the kernel compiles for it."""
         phys = self.chamber.physics
         nee = self.settings.sensors or self.settings.receivers
         geometry = Geometry(self.scene.handle, self.intersect, self.occluded, float(phys.offset), i64(self.geom_offset),
@@ -423,11 +424,13 @@ class KernelScene:
         ``settings.picks`` at every vertex (cached per organs and settings)."""
         scene, nee = recs
         org = nee.organs
+        pilot = getattr(self, "pick_pilot", PICK_PILOT)
         key = (self.settings.picks, org.cones, org.local, org.zones.picks, nee.mirrors.picks, nee.mirrors.picks2,
-               bytes(self.mat_nee), bytes(self.emit_nee), bytes(self.mir_on), self.estimator, self.settings.facing)
+               bytes(self.mat_nee), bytes(self.emit_nee), bytes(self.mir_on), self.estimator, self.settings.facing,
+               pilot)
         if key not in self._pick_mean:
             compile_kernel(self, recs, note)
-            _, _, counters, _ = self.trace(PICK_SEED, 0, PICK_PILOT, recs)
+            _, _, counters, _ = self.trace(PICK_SEED, 0, pilot, recs)
             n = int(counters[C_PICK_VERTICES])
             self._pick_mean[key] = (float(counters[C_PICK_SHARE]) / SHARE_SCALE / n * org.pick_unit) if n else 0.0
         return scene, nee._replace(organs=org._replace(pick_mean=self._pick_mean[key]))
