@@ -50,22 +50,7 @@ def light_the_rose(photons, seeds, stage, stages, threads):
     model = LightModel("angers-12bands", plant_unit="cm", threads=threads, targets=list(KINDS),
                        organs={"Leaf": LEAF_MATERIAL, "Internode": LEAF_MATERIAL[0], "Bud": LEAF_MATERIAL[0]})
     organs = model.organs_from_meshes({k: (m, mat, mod) for k, (m, mat, mod) in rose(stage, stages).items()})
-    red, far = model.chamber.band_labels.index("655-665"), model.chamber.band_labels.index("725-735")
-    out, seconds = {}, {}
-    for seed in seeds:
-        for n in photons:
-            model.seed, model.step = seed, 0         # every budget of a seed: the same photon streams
-            t = time.perf_counter()
-            step = model.run(organs, photons=int(n))
-            seconds[seed, n] = time.perf_counter() - t
-            lights = [light for light in step.organs.values() if light.module in KINDS]
-            out[seed, n] = {"module": np.array([light.module for light in lights]),
-                            "rfr": np.array([light.rfr for light in lights]),
-                            "rfr_std": np.array([light.rfr_std for light in lights]),
-                            "plain": np.array([light.ppfd[red] / light.ppfd[far] for light in lights]),
-                            "far_cv": np.array([light.ppfd_std[far] / light.ppfd[far] for light in lights])}
-            print("  seed %d, %.3g photons: %.1f s" % (seed, n, seconds[seed, n]), flush=True)
-    return out, seconds
+    return light_at_budgets(model, organs, photons, seeds)
 
 
 def light_a_grown_model(model_path, steps, photons, seeds, threads, grow_photons):
@@ -77,15 +62,21 @@ def light_a_grown_model(model_path, steps, photons, seeds, threads, grow_photons
     t = time.perf_counter()
     lsys = Lsystem(str(model_path), {"STEPS": steps, "PHOTONS": int(grow_photons), "PRECISION": None})
     lsys.derive()
-    model = lsys.context()["light"] if "light" in lsys.context() else lsys.light
-    organs = model.last_organs
-    print("  %s grown %d steps in %.0f s: %d organs" % (model_path, steps, time.perf_counter() - t, len(organs)))
-    model.precision = None
+    model = lsys.context()["light"]
+    print("  %s grown %d steps in %.0f s: %d organs" % (model_path, steps, time.perf_counter() - t,
+                                                        len(model.last_organs)))
+    model.precision, model.threads = None, threads
+    return light_at_budgets(model, model.last_organs, photons, seeds)
+
+
+def light_at_budgets(model, organs, photons, seeds):
+    """``organs`` lit by ``model`` at each budget for each seed (a seed: the same photon streams at every
+    budget); the per-organ numbers of :func:`light_the_rose` and the seconds of each run."""
     red, far = model.chamber.band_labels.index("655-665"), model.chamber.band_labels.index("725-735")
     out, seconds = {}, {}
     for seed in seeds:
         for n in photons:
-            model.seed, model.step = seed, 0
+            model.seed, model.step = seed, 0         # every budget of a seed: the same photon streams
             t = time.perf_counter()
             step = model.run(organs, photons=int(n))
             seconds[seed, n] = time.perf_counter() - t
