@@ -7,6 +7,7 @@ X,Y,Z``).  The parser is :mod:`lpy_light.cli`'s.
 """
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 import sys
@@ -156,7 +157,9 @@ def cmd_grow(args) -> int:
     summary = {"model": str(path), "steps": summaries, "partial": partial, "photons_per_step": model.photons,
                "precision": model.precision, "lit_from_outside": outside,
                "bands": model.chamber.band_labels, "plant_unit_m": model.scale * model.chamber.metres_per_unit,
-               "position": list(map(float, model.position)), "warnings": seen.summary()}
+               "position": list(map(float, model.position)), "scene": str(model.chamber.source),
+               "seed": model.seed, "estimator": model.kscene.estimator,
+               "settings": dataclasses.asdict(model.kscene.settings), "warnings": seen.summary()}
     if model.last_step is not None and model.last_organs:
         pictures.append(_plant_picture(out / "plant.png", model, path, model.last_step, model.last_organs))
     summary["pictures"] = [p for p in pictures if p]

@@ -92,6 +92,8 @@ def test_rose_grows_with_its_light_and_pictures(tmp_path):
     assert sorted(f.name for f in tmp_path.glob("*.png")) == ["plant.png", "plant_003.png", "plant_007.png"]
     summary = json.loads((tmp_path / "summary.json").read_text())
     assert len(summary["steps"]) == 8 and all("convert_seconds" in s for s in summary["steps"][1:])
+    assert summary["estimator"] == "nee" and summary["settings"]["closed_zones"] is True   # what ran, to rerun it
+    assert summary["seed"] == 1 and summary["scene"].endswith(".toml")
     warnings = [line for line in p.stderr.splitlines() if ": warning: " in line]
     assert len(warnings) == len(set(w.split(":")[2][:40] for w in warnings))
 
