@@ -409,6 +409,12 @@ class KernelScene:
             recs = self._with_pick_mean(recs, note)
         return recs
 
+    def size_pilots(self, photons: int):
+        """Pilots no larger than the run they serve: the pick-share pilot of a run of ``photons`` traces
+        min(:data:`PICK_PILOT`, max(:data:`PILOT_FLOOR`, photons)) photons (a plant lit every step at a few thousand
+        photons: 8,192 pilot photons were most of its kernel time; runs of 8,192 photons and more as before)."""
+        self.pick_pilot = min(PICK_PILOT, max(PILOT_FLOOR, int(photons)))
+
     def _pick_unit(self) -> float:
         """The unit of the pick shares counted by the kernel: (targets) / (the chamber's diagonal)²."""
         span = self.tri_verts[:self.n_chamber_triangles].reshape(-1, 3)
@@ -462,6 +468,8 @@ class KernelScene:
 COMPILE_NOTE_AFTER = 1.0
 #: photons of the pilot that finds the vertices' mean pick share for a plant's organs (KernelScene.records), its seed
 PICK_PILOT = 8192
+#: the fewest photons of that pilot, for runs of fewer photons (:meth:`KernelScene.size_pilots`)
+PILOT_FLOOR = 2048
 PICK_SEED = 271828
 
 

@@ -47,9 +47,6 @@ from .scene import UNITS, load_scene, resolve_scene
 
 log = logging.getLogger("lpy_light")
 
-#: the fewest photons of the pilot that finds a step's mean pick share (:attr:`KernelScene.pick_pilot`)
-PILOT_FLOOR = 2048
-
 #: what a model imports from here: the light model, and an organ's light (:mod:`lpy_light.organ_light`)
 __all__ = ["LightModel", "LEAF", "MODELS", "MIRROR_EVENTS", "lamp_factors", "OrganLight", "StepResult", "NOT_REACHED",
            "ORGAN_COLUMNS", "organ_lights", "organ_rows", "for_rules", "not_reached", "shading_only"]
@@ -310,9 +307,7 @@ class LightModel:
             def precision_of(partial):          # the largest σ / goal: the goal is reached at 1
                 return step_sigma_over_goal(self.kscene, partial, np.flatnonzero(read), self.chamber, self.goal,
                                             self.flux)
-        # the pilot that finds the vertices' mean pick share costs no more than the step (a few thousand photons a
-        # step, lit every step: 8,192 pilot photons were most of its kernel time)
-        self.kscene.pick_pilot = min(simulate.PICK_PILOT, max(PILOT_FLOOR, n))
+        self.kscene.size_pilots(n)
         result = simulate.run(self.kscene, n, seed=self.seed + self.step, threads=self.threads,
                               progress=self.progress, precision=None if precision_of is None else 1.0,
                               precision_of=precision_of)
