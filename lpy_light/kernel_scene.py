@@ -430,7 +430,7 @@ class KernelScene:
         ``settings.picks`` at every vertex (cached per organs and settings)."""
         scene, nee = recs
         org = nee.organs
-        pilot = getattr(self, "pick_pilot", PICK_PILOT)
+        pilot = self.pick_pilot
         key = (self.settings.picks, org.cones, org.local, org.zones.picks, nee.mirrors.picks, nee.mirrors.picks2,
                bytes(self.mat_nee), bytes(self.emit_nee), bytes(self.mir_on), self.estimator, self.settings.facing,
                pilot)

@@ -210,8 +210,8 @@ def _faces(index_list) -> np.ndarray:
 
 def _tessellate(shape, pgl, topology=None, faces_of=None):
     """``(vertices (n, 3), faces (m, 3))`` of a shape, or None if it has no triangles.  ``faces_of`` (a dict
-    kept across steps) holds the faces of each ``topology`` key already met; a face list is reused only where
-    the counts and the first and last face agree."""
+    kept across steps) holds ``(faces, number of points)`` for each ``topology`` key already met; a face list is
+    reused only where the counts and the first and last face agree."""
     t = pgl.Tesselator()
     shape.apply(t)
     ts = t.result
@@ -223,28 +223,16 @@ def _tessellate(shape, pgl, topology=None, faces_of=None):
         return None
     points = _points(ts.pointList)
     known = faces_of.get(topology) if faces_of is not None and topology is not None else None
-    if (known is not None and len(known) == m and len(points) == known.n_points
-            and tuple(index_list[0]) == tuple(known[0]) and tuple(index_list[m - 1]) == tuple(known[-1])):
-        return points, known.faces
+    if known is not None:
+        faces, n_points = known
+        if (len(faces) == m and len(points) == n_points and tuple(index_list[0]) == tuple(faces[0])
+                and tuple(index_list[m - 1]) == tuple(faces[-1])):
+            return points, faces
     faces = _faces(index_list)
     faces.flags.writeable = False          # shared by every shape of this topology
     if faces_of is not None and topology is not None:
-        faces_of[topology] = _Faces(faces, len(points))
+        faces_of[topology] = (faces, len(points))
     return points, faces
-
-
-class _Faces:
-    """The faces of one topology and the number of points they index."""
-    __slots__ = ("faces", "n_points")
-
-    def __init__(self, faces, n_points):
-        self.faces, self.n_points = faces, n_points
-
-    def __len__(self):
-        return len(self.faces)
-
-    def __getitem__(self, i):
-        return self.faces[i]
 
 
 def shapes_by_module(lstring, lscene, names, cache):

@@ -134,7 +134,7 @@ class TessellationCache:
     def __init__(self):
         self._items: dict = {}
         self._used: set = set()
-        self.faces: dict = {}     # topology key -> faces, for lpy._tessellate (kept: a handful of topologies)
+        self.faces: dict = {}     # topology key -> (faces, points), for lpy._tessellate (kept: a handful of them)
         self.hits = 0
         self.misses = 0
 

@@ -174,7 +174,7 @@ def test_meshes_read_fast_are_plantgls_own():
     assert thin[0] == thin[1] == thin[2] != adapter.topology_key(adapter.geometry_key(shapes[-3]))
     # a cached topology whose counts differ is not reused (e.g. a tessellator that dropped a triangle)
     bogus = next(iter(cache.faces))
-    cache.faces[bogus] = adapter._Faces(np.zeros((3, 3), dtype=np.int64), 3)
+    cache.faces[bogus] = (np.zeros((3, 3), dtype=np.int64), 3)
     shape = pgl.Shape(shapes[0])
     points, faces = adapter._tessellate(shape, pgl, bogus, cache.faces)
     assert len(faces) > 3
