@@ -10,7 +10,10 @@ from __future__ import annotations
 import dataclasses
 import logging
 import math
+import signal
 import sys
+import threading
+from contextlib import contextmanager
 from pathlib import Path
 
 from .errors import InputError
@@ -69,6 +72,28 @@ def extern_values(sets) -> dict:
         except (ValueError, SyntaxError):
             out[name.strip()] = value.strip()
     return out
+
+
+@contextmanager
+def _ctrl_c_noted():
+    """Within the block, a Ctrl-C raises KeyboardInterrupt as usual and is also noted (the Event yielded): the
+    growth loop must stop even where the KeyboardInterrupt is lost -- raised inside a rule L-Py's C++ called,
+    or turned into a SystemError by numba's cache loader (a grow interrupted at the wrong moment ran to its end,
+    or ended with a traceback)."""
+    noted = threading.Event()
+    if threading.current_thread() is not threading.main_thread():
+        yield noted
+        return
+
+    def on_ctrl_c(signum, frame):
+        noted.set()
+        raise KeyboardInterrupt
+
+    previous = signal.signal(signal.SIGINT, on_ctrl_c)
+    try:
+        yield noted
+    finally:
+        signal.signal(signal.SIGINT, previous)
 
 
 def cmd_grow(args) -> int:
@@ -140,7 +165,7 @@ def cmd_grow(args) -> int:
     partial = False
     lstring = lsys.axiom
     derived = 0
-    with organs_csv, model.warnings_once() as seen:
+    with organs_csv, model.warnings_once() as seen, _ctrl_c_noted() as ctrl_c:
         try:
             for i in range(steps):
                 lstring = lsys.derive(lstring, i, 1)
@@ -148,8 +173,14 @@ def cmd_grow(args) -> int:
                 if outside and ((i + 1) % args.every == 0 or i == steps - 1):
                     model.step = i
                     model.intercept(lstring, lsys.sceneInterpretation(lstring))
+                if ctrl_c.is_set():      # a Ctrl-C whose KeyboardInterrupt L-Py's C++ did not pass on
+                    raise KeyboardInterrupt
         except KeyboardInterrupt:
             partial = True
+        except Exception:
+            if not ctrl_c.is_set():
+                raise
+            partial = True               # ... or that arrived as another error (numba's cache loader: SystemError)
         if not outside and model.last_step is None and not partial:
             logging.getLogger("lpy_light").warning(
                 "the model's LightModel was never called: call light.intercept(lstring, lscene) in EndEach, with "
