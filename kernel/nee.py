@@ -618,6 +618,8 @@ def target_event(v, pick, w, u, stat, geo, mat, sens, tgt, photon, stats, n_out)
     counters[C_SHADOW] += 1
     nee_stats[stat, 0] += 1
     ox, oy, oz = vx + side * eps * nx, vy + side * eps * ny, vz + side * eps * nz
+    leg = photon.leg
+    leg[0], leg[1], leg[2], leg[3], leg[4], leg[5] = ox, oy, oz, dx, dy, dz
     return seen_deposit(t, g, cos_x, ((ox, oy, oz), (dx, dy, dz), (px, py, pz), dist, tol), (stat, stat), geo, mat,
                         tgt, photon, stats, n_out)
 

@@ -148,17 +148,12 @@ def organ_zone_event(v, n_draw, left, stat, geo, mat, sens, tgt, organs, photon,
     surface met after v may make next events if k < left).  Returns the new number of deposits in
     ``photon.out_k`` / ``photon.out_w``.
     """
-    vx, vy, vz, nx, ny, nz, mode, m, vscale, _vtri = v
+    vx, vy, vz = v.x, v.y, v.z
     oz = organs.zones
-    w, w2 = photon.w, photon.w2
-    state, scratch = photon.state, photon.scratch
-    n_bands = w.shape[0]
+    state = photon.state
     n_zone = oz.target.shape[0]
     if n_zone == 0 or n_draw <= 0 or not oz.picks > 0.0:
         return 0
-    c0, c1 = view_factors(mode)
-    vmag = max(abs(vx), abs(vy), abs(vz), vscale)
-    rh = scratch + RAYHIT
     n_out = 0
     # zones drawn ∝ 1 / max(d², R²) (R the zone's radius): about the solid angle of the zone seen from v
     vpos = (vx, vy, vz)
@@ -170,105 +165,124 @@ def organ_zone_event(v, n_draw, left, stat, geo, mat, sens, tgt, organs, photon,
         t, p_z = draw(uniform(state), uniform(state), total, vpos, how, organs.clusters, tgt, photon.cdf, photon.exact)
         if t < 0:
             continue
-        z = oz.zone_of[t]
-        near_r2 = tgt.near_r2[t]
-        u0, u1, u2, u3 = uniform(state), uniform(state), uniform(state), uniform(state)
-        cx, cy, cz = tgt.center[t, 0], tgt.center[t, 1], tgt.center[t, 2]
-        ax, ay, az = cx - vx, cy - vy, cz - vz            # the cone of t's near sphere seen from v
-        dc2 = ax * ax + ay * ay + az * az
-        dc = math.sqrt(dc2)
-        omc = 1.0 - math.sqrt(1.0 - near_r2 / dc2) if dc2 > near_r2 else 2.0    # 1 − cos of its half angle
-        by_bud = ZONE_BY_BUD if oz.own[t] != 0 else 0.0
-        rb2 = tgt.img_near2[t] / (NEAR * NEAR)           # t's bounding sphere (radius², about its centre)
-        omc_b = 1.0 - math.sqrt(1.0 - rb2 / dc2) if dc2 > rb2 else 2.0
-        by_ray = u0 < by_bud + ZONE_BY_CONE
-        if by_ray:                # the first surface met in a direction from v uniform in a cone
-            dx, dy, dz = uniform_cone(ax / dc, ay / dc, az / dc, omc_b if u0 < by_bud else omc, u1, u2)
-            cos_v = dx * nx + dy * ny + dz * nz
-            side = 0.0 if mode == V_ISOTROPIC else (1.0 if cos_v > 0.0 else -1.0)
-            eps = geo.offset_rel * vmag
-            stats.counters[C_SHADOW] += 1
-            k, yx, yy, yz = first_hit(geo, scratch, vx + side * eps * nx, vy + side * eps * ny,
-                                      vz + side * eps * nz, dx, dy, dz, dc + math.sqrt(near_r2) + 4.0 * eps, state)
-            if k < 0:
-                continue
-            a = geo.verts[k]
-            rec = geo.receiver[k]
-            if (rec < 0 or geo.plane_id[k] >= 0 or (rec == tgt.ref[t] and oz.own[t] == 0)
-                    or not near_listed(t, k, tgt)):
-                continue                                   # not a triangle of t's zone
-        else:                     # a point drawn on the zone's surface
-            by_angle = u3 >= ZONE_BY_AREA and oz.total[z, 1] > 0.0
-            u4 = uniform(state)
-            i = search_cdf(oz.cdf_angle if by_angle else oz.cdf_area, oz.start[z], oz.start[z + 1] - 1, u4)
-            k = oz.tri[i]
-            a = geo.verts[k]
-            if by_angle:          # in a direction from the target's centre uniform in the triangle's solid angle
-                yx, yy, yz, om = point_by_solid_angle(cx, cy, cz, a, geo.normal[k, 0], geo.normal[k, 1],
-                                                      geo.normal[k, 2], u1, u2)
-                if om == 0.0:
-                    continue
-            else:                 # uniform on the triangle
-                yx, yy, yz = tri_point(a, u1, u2)
-        kx, ky, kz = geo.normal[k, 0], geo.normal[k, 1], geo.normal[k, 2]
-        ex, ey, ez = yx - cx, yy - cy, yz - cz
-        d2c = ex * ex + ey * ey + ez * ez
-        if not (d2c < near_r2 and d2c > 0.0):
-            continue                                   # outside the zone (a photon there makes a pick instead)
-        dx, dy, dz = yx - vx, yy - vy, yz - vz
-        dist2 = dx * dx + dy * dy + dz * dz
-        if not dist2 >= near_r2:
-            continue                                   # a short leg: left to the own events and walks
-        dist = math.sqrt(dist2)
-        dx, dy, dz = dx / dist, dy / dist, dz / dist
+        n_out = zone_event_to(v, (t, p_z, oz.picks), left, stat, geo, mat, sens, tgt, organs, photon, stats, n_out)
+    return n_out
+
+
+@helper
+def zone_event_to(v, pick, left, stat, geo, mat, sens, tgt, organs, photon, stats, n_out):
+    """One draw of :func:`organ_zone_event` for the zone of target t, ``pick`` = (t, p_z, picks): the light that the
+    segment leaving ``v`` brings to t through one point y of t's zone, divided by p_z · picks (the probability
+    the caller drew t with, its draws' mean); from y, the walk.  Deposits from ``photon.out_k[n_out]`` /
+    ``photon.out_w[n_out]`` on; returns the new count."""
+    vx, vy, vz, nx, ny, nz, mode, m, vscale, _vtri = v
+    t, p_z, picks = pick
+    oz = organs.zones
+    w, w2 = photon.w, photon.w2
+    state, scratch = photon.state, photon.scratch
+    n_bands = w.shape[0]
+    c0, c1 = view_factors(mode)
+    vmag = max(abs(vx), abs(vy), abs(vz), vscale)
+    rh = scratch + RAYHIT
+    z = oz.zone_of[t]
+    near_r2 = tgt.near_r2[t]
+    u0, u1, u2, u3 = uniform(state), uniform(state), uniform(state), uniform(state)
+    cx, cy, cz = tgt.center[t, 0], tgt.center[t, 1], tgt.center[t, 2]
+    ax, ay, az = cx - vx, cy - vy, cz - vz            # the cone of t's near sphere seen from v
+    dc2 = ax * ax + ay * ay + az * az
+    dc = math.sqrt(dc2)
+    omc = 1.0 - math.sqrt(1.0 - near_r2 / dc2) if dc2 > near_r2 else 2.0    # 1 − cos of its half angle
+    by_bud = ZONE_BY_BUD if oz.own[t] != 0 else 0.0
+    rb2 = tgt.img_near2[t] / (NEAR * NEAR)           # t's bounding sphere (radius², about its centre)
+    omc_b = 1.0 - math.sqrt(1.0 - rb2 / dc2) if dc2 > rb2 else 2.0
+    by_ray = u0 < by_bud + ZONE_BY_CONE
+    if by_ray:                # the first surface met in a direction from v uniform in a cone
+        dx, dy, dz = uniform_cone(ax / dc, ay / dc, az / dc, omc_b if u0 < by_bud else omc, u1, u2)
         cos_v = dx * nx + dy * ny + dz * nz
-        if mode == V_LAMBERT and cos_v <= 0.0:
-            continue
-        cos_in = dx * kx + dy * ky + dz * kz
-        if cos_in > 0.0:                               # met from its back: the back's material, normal towards v
-            m_y = geo.material[k, 1]
-            kx, ky, kz = -kx, -ky, -kz
-        else:
-            m_y = geo.material[k, 0]
-            cos_in = -cos_in
-        if tgt.from_material[m_y] == 0 or not cos_in > 0.0:
-            continue                                   # no next events from y's material: its crossings count
-        ymag = magnitude(a)
-        if not by_ray:
-            side = 0.0 if mode == V_ISOTROPIC else (1.0 if cos_v > 0.0 else -1.0)
-            eps = geo.offset_rel * (vmag + ymag)
-            # the first leg: what a photon leaving v towards y meets first (past y by a little: Embree's float32)
-            set_ray(scratch, vx + side * eps * nx, vy + side * eps * ny, vz + side * eps * nz, dx, dy, dz,
-                    dist * (1.0 + 2.0 ** -10) + 4.0 * eps)
-            stats.counters[C_SHADOW] += 1
-            call_ptr3(geo.intersect, geo.scene, rh, scratch + ARGS)
-            gid = load_u32(rh + GEOM_ID)
-            if gid == INVALID_ID or load_u32(rh + PRIM_ID) + geo.geom_offset[gid] != k:
-                continue                               # something else first: no such vertex y
-        # the density of y, in the solid angle seen from v, of both ways of drawing it
-        cos_c = abs(ex * geo.normal[k, 0] + ey * geo.normal[k, 1] + ez * geo.normal[k, 2]) / math.sqrt(d2c)
-        by_surface = 1.0 - by_bud - ZONE_BY_CONE
-        if oz.total[z, 1] > 0.0:      # by area or by solid angle from the centre (per unit area of the zone)
-            p_a = by_surface * (ZONE_BY_AREA / oz.total[z, 0] + (1.0 - ZONE_BY_AREA) * cos_c / (d2c * oz.total[z, 1]))
-        else:
-            p_a = by_surface / oz.total[z, 0]
-        p_w = ZONE_BY_CONE / (2.0 * math.pi * omc) + p_a * dist2 / cos_in
-        if by_bud > 0.0 and 1.0 - (dx * ax + dy * ay + dz * az) / dc <= omc_b:    # within t's own cone too
-            p_w += by_bud / (2.0 * math.pi * omc_b)
-        arrive = 1.0 / (p_w * p_z * oz.picks)
-        any_light = False
-        for b in range(n_bands):
-            fv = c0 + c1 * abs(cos_v)
-            if mode == V_SURFACE:
-                fv *= mat.prob[m, 0 if cos_v > 0.0 else 2, b]
-            w2[b] = w[b] * fv * arrive
-            any_light = any_light or w2[b] > 0.0
-        if not any_light:
-            continue
-        u5, u6, u7 = uniform(state), uniform(state), uniform(state)
-        y = Vertex(yx, yy, yz, kx, ky, kz, V_SURFACE, np.int64(m_y), ymag + vmag, k)
-        n_out = target_event(y, (t, d2c, 1.0), w2, (u5, u6, u7), stat, geo, mat, sens, tgt, photon, stats, n_out)
-        n_out = zone_walk(y, t, min(oz.walk, left - 2), stat, geo, mat, sens, tgt, oz, photon, stats, n_out)
+        side = 0.0 if mode == V_ISOTROPIC else (1.0 if cos_v > 0.0 else -1.0)
+        eps = geo.offset_rel * vmag
+        stats.counters[C_SHADOW] += 1
+        k, yx, yy, yz = first_hit(geo, scratch, vx + side * eps * nx, vy + side * eps * ny,
+                                  vz + side * eps * nz, dx, dy, dz, dc + math.sqrt(near_r2) + 4.0 * eps, state)
+        if k < 0:
+            return n_out
+        a = geo.verts[k]
+        rec = geo.receiver[k]
+        if (rec < 0 or geo.plane_id[k] >= 0 or (rec == tgt.ref[t] and oz.own[t] == 0)
+                or not near_listed(t, k, tgt)):
+            return n_out                                   # not a triangle of t's zone
+    else:                     # a point drawn on the zone's surface
+        by_angle = u3 >= ZONE_BY_AREA and oz.total[z, 1] > 0.0
+        u4 = uniform(state)
+        i = search_cdf(oz.cdf_angle if by_angle else oz.cdf_area, oz.start[z], oz.start[z + 1] - 1, u4)
+        k = oz.tri[i]
+        a = geo.verts[k]
+        if by_angle:          # in a direction from the target's centre uniform in the triangle's solid angle
+            yx, yy, yz, om = point_by_solid_angle(cx, cy, cz, a, geo.normal[k, 0], geo.normal[k, 1],
+                                                  geo.normal[k, 2], u1, u2)
+            if om == 0.0:
+                return n_out
+        else:                 # uniform on the triangle
+            yx, yy, yz = tri_point(a, u1, u2)
+    kx, ky, kz = geo.normal[k, 0], geo.normal[k, 1], geo.normal[k, 2]
+    ex, ey, ez = yx - cx, yy - cy, yz - cz
+    d2c = ex * ex + ey * ey + ez * ez
+    if not (d2c < near_r2 and d2c > 0.0):
+        return n_out                                   # outside the zone (a photon there makes a pick instead)
+    dx, dy, dz = yx - vx, yy - vy, yz - vz
+    dist2 = dx * dx + dy * dy + dz * dz
+    if not dist2 >= near_r2:
+        return n_out                                   # a short leg: left to the own events and walks
+    dist = math.sqrt(dist2)
+    dx, dy, dz = dx / dist, dy / dist, dz / dist
+    cos_v = dx * nx + dy * ny + dz * nz
+    if mode == V_LAMBERT and cos_v <= 0.0:
+        return n_out
+    cos_in = dx * kx + dy * ky + dz * kz
+    if cos_in > 0.0:                               # met from its back: the back's material, normal towards v
+        m_y = geo.material[k, 1]
+        kx, ky, kz = -kx, -ky, -kz
+    else:
+        m_y = geo.material[k, 0]
+        cos_in = -cos_in
+    if tgt.from_material[m_y] == 0 or not cos_in > 0.0:
+        return n_out                                   # no next events from y's material: its crossings count
+    ymag = magnitude(a)
+    if not by_ray:
+        side = 0.0 if mode == V_ISOTROPIC else (1.0 if cos_v > 0.0 else -1.0)
+        eps = geo.offset_rel * (vmag + ymag)
+        # the first leg: what a photon leaving v towards y meets first (past y by a little: Embree's float32)
+        set_ray(scratch, vx + side * eps * nx, vy + side * eps * ny, vz + side * eps * nz, dx, dy, dz,
+                dist * (1.0 + 2.0 ** -10) + 4.0 * eps)
+        stats.counters[C_SHADOW] += 1
+        call_ptr3(geo.intersect, geo.scene, rh, scratch + ARGS)
+        gid = load_u32(rh + GEOM_ID)
+        if gid == INVALID_ID or load_u32(rh + PRIM_ID) + geo.geom_offset[gid] != k:
+            return n_out                               # something else first: no such vertex y
+    # the density of y, in the solid angle seen from v, of both ways of drawing it
+    cos_c = abs(ex * geo.normal[k, 0] + ey * geo.normal[k, 1] + ez * geo.normal[k, 2]) / math.sqrt(d2c)
+    by_surface = 1.0 - by_bud - ZONE_BY_CONE
+    if oz.total[z, 1] > 0.0:      # by area or by solid angle from the centre (per unit area of the zone)
+        p_a = by_surface * (ZONE_BY_AREA / oz.total[z, 0] + (1.0 - ZONE_BY_AREA) * cos_c / (d2c * oz.total[z, 1]))
+    else:
+        p_a = by_surface / oz.total[z, 0]
+    p_w = ZONE_BY_CONE / (2.0 * math.pi * omc) + p_a * dist2 / cos_in
+    if by_bud > 0.0 and 1.0 - (dx * ax + dy * ay + dz * az) / dc <= omc_b:    # within t's own cone too
+        p_w += by_bud / (2.0 * math.pi * omc_b)
+    arrive = 1.0 / (p_w * p_z * picks)
+    any_light = False
+    for b in range(n_bands):
+        fv = c0 + c1 * abs(cos_v)
+        if mode == V_SURFACE:
+            fv *= mat.prob[m, 0 if cos_v > 0.0 else 2, b]
+        w2[b] = w[b] * fv * arrive
+        any_light = any_light or w2[b] > 0.0
+    if not any_light:
+        return n_out
+    u5, u6, u7 = uniform(state), uniform(state), uniform(state)
+    y = Vertex(yx, yy, yz, kx, ky, kz, V_SURFACE, np.int64(m_y), ymag + vmag, k)
+    n_out = target_event(y, (t, d2c, 1.0), w2, (u5, u6, u7), stat, geo, mat, sens, tgt, photon, stats, n_out)
+    n_out = zone_walk(y, t, min(oz.walk, left - 2), stat, geo, mat, sens, tgt, oz, photon, stats, n_out)
     return n_out
 
 

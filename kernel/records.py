@@ -184,6 +184,28 @@ Control = namedtuple("Control", [
     "plane",         # (r,) float32: each run's plane offset n·c
 ])
 
+# the chamber's light stored once and replayed into each step's plant (kernel.gather, lpy_light.reuse)
+REPLAY_STORE, REPLAY_CONTINUE = 1, 2
+# columns of a stored vertex (Replay.vpl): x, y, z, normal (3), mode, material, scale, triangle, nee_stats row,
+# then the photon's weights (B)
+VPL_W = 11
+# columns of a start or stored segment (Replay.starts, Replay.seg): origin (3), unit direction (3), the vertex
+# the segment leaves (3), covered (1: next events from that vertex cover its crossings of organs), the mirror plane
+# it leaves after a next-event vertex (1, or -1) and that vertex (3: image events from there cover its crossings),
+# then weights (B)
+START_W = 14
+
+Replay = namedtuple("Replay", [
+    "mode",          # REPLAY_STORE: log the chamber's light; REPLAY_CONTINUE: trace from ``starts``
+    "organ0",        # the first receiver that is an organ: a receiver below it (or none) is the chamber's
+    "starts",        # (n, START_W + B) float64: where the paths of REPLAY_CONTINUE start, indexed by photon
+    "vpl",           # (cap, VPL_W + B) float64: REPLAY_STORE's log of the chamber's next-event vertices
+    "seg",           # (cap2, START_W + B) float64: ... and of the segments from the chamber not covered by next
+                     # events that cross ``box``
+    "count",         # (2,) int64: vertices and segments logged (counted past the capacity too)
+    "box",           # (6,) float64: the plant's region, lo (3) and hi (3)
+])
+
 # what every run traces through
 Scene = namedtuple("Scene", ["geometry", "materials", "emitters", "sensors"])
 # next events (estimator nee; None where there is no target: their code is then not compiled); organs: OrganEvents
@@ -224,6 +246,8 @@ Photon = namedtuple("Photon", [
     "chain",         # (D + 1, 5) float64: the organ vertices the photon met one after the other, each straight from
                      # the one before, a next-event vertex: x, y, z, triangle, length² of the leg that reached it
                      # (kernel.nee.zone_served; D the scene's max_depth)
+    "leg",           # (6,) float64: the last shadow ray of a next event to a target: origin, unit direction
+                     # (kernel.nee.target_event; a gather's arrival continues from there: kernel.gather)
 ])
 
 Accumulator = namedtuple("Accumulator", [

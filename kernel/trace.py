@@ -52,8 +52,8 @@ from .nee import OWN_SAMPLES, next_event
 from .organ_zones import organ_zone_event
 from .ptr import call_ptr3, load_f32, load_i64, load_u32
 from .rays import magnitude, pick_coplanar, set_ray
-from .records import (ABSORB, DIFFUSE_R, DIFFUSE_T, SENSOR_DISC, SPECULAR_R, V_SURFACE, Accumulator, ControlWork,
-                      Photon, Vertex)
+from .records import (ABSORB, DIFFUSE_R, DIFFUSE_T, REPLAY_CONTINUE, REPLAY_STORE, SENSOR_DISC, SPECULAR_R, START_W,
+                      V_SURFACE, VPL_W, Accumulator, ControlWork, Photon, Vertex)
 from .rng import n_draws, seed_stream, uniform
 from .sampling import cosine_hemisphere, mirror, phong_lobe
 from .tallies import (C_BATCHES, C_CAND_OVERFLOW, C_LOST, C_RAYS, N_COUNTERS, fate_rows, flush,  # noqa: F401
@@ -83,6 +83,26 @@ def _inside(s, px, py, pz, sens):
 
 
 @helper
+def _crosses(box, ox, oy, oz, dx, dy, dz, t_end):
+    """Does the segment o + s·d, 0 < s < ``t_end``, cross the box ``box`` (lo (3), hi (3))?"""
+    lo, hi = 0.0, t_end
+    for a in range(3):
+        o = ox if a == 0 else (oy if a == 1 else oz)
+        d = dx if a == 0 else (dy if a == 1 else dz)
+        if d == 0.0:
+            if o < box[a] or o > box[3 + a]:
+                return False
+        else:
+            s1, s2 = (box[a] - o) / d, (box[3 + a] - o) / d
+            if s1 > s2:
+                s1, s2 = s2, s1
+            lo, hi = max(lo, s1), min(hi, s2)
+            if lo > hi:
+                return False
+    return True
+
+
+@helper
 def _counted(skip, t, x, y, z, tgt):
     """Is a crossing of target t counted on a segment that starts at vertex (x, y, z)?
 
@@ -94,7 +114,7 @@ def _counted(skip, t, x, y, z, tgt):
     return ex * ex + ey * ey + ez * ez < tgt.near2[t]
 
 
-def trace_chunk(scene, nee, scratch, seed, first, count, tallies, stats):
+def trace_chunk(scene, nee, scratch, seed, first, count, tallies, stats, replay=None):
     """Trace photons ``first .. first+count-1`` of the run of ``seed`` through ``scene``
     (:class:`~kernel.records.Scene`) with next events ``nee`` (:class:`~kernel.records.NextEvents`, or None:
     none, and none of their code is compiled); add what they do to ``tallies`` and ``stats``
@@ -105,10 +125,18 @@ def trace_chunk(scene, nee, scratch, seed, first, count, tallies, stats):
     (:func:`work_arrays`) and runs :func:`trace_photons`, the one compiled function Python calls (compiled on
     the first call with each kind of records, its helpers on two cores where numba's cache lacks it:
     :mod:`kernel.warm`).
+
+    ``replay`` (:class:`~kernel.records.Replay`, or None: none of its code is compiled): the chamber's light
+    stored once and replayed into a step's plant (:mod:`kernel.gather`).  ``REPLAY_STORE``: the photons make no
+    next events; each vertex on the chamber (or a lamp) that would make them is logged in ``replay.vpl`` with the
+    photon's weights, and each segment from the chamber that next events would not cover and that crosses
+    ``replay.box`` in ``replay.seg``.  ``REPLAY_CONTINUE``: path i starts as ``replay.starts[i]`` says
+    (no lamp) and ends where it meets the chamber, whose light from there on the store holds.
     """
     photon, accum, cvw = work_arrays(scene, nee, scratch, tallies)
-    args = (scene, nee, None if nee is None else nee.organs, seed, first, count, tallies, stats, photon, accum, cvw)
-    kinds = (nee is None, nee is None or nee.organs is None)     # what sets the types (the arrays' are fixed)
+    args = (scene, nee, None if nee is None else nee.organs, seed, first, count, tallies, stats, photon, accum, cvw,
+            replay)
+    kinds = (nee is None, nee is None or nee.organs is None, replay is None)   # what sets the types
     if kinds not in _CALLED:                # a first call of these types: a compile uses two cores
         share_compile(trace_photons, args)
         _CALLED.add(kinds)
@@ -148,7 +176,7 @@ def work_arrays(scene, nee, scratch, tallies):
                     np.empty(n_bands), np.empty(n_slots, dtype=np.int64), np.empty((n_slots, n_bands)),
                     np.empty(CAND_CAP + n_flush, dtype=np.int64), np.empty(max(1, n_cdf + (2 + CONE_DATA) * n_clusters)),
                     np.zeros(max(1, n_clusters), dtype=np.uint8), np.empty(max(1, 2 * n_planes)),
-                    np.empty((mat.max_depth + 2, 5)))
+                    np.empty((mat.max_depth + 2, 5)), np.empty(6))
     accum = Accumulator(np.zeros((n_rows, n_bands)), np.zeros(n_rows, dtype=np.uint8), np.empty(n_rows, dtype=np.int64),
                         np.empty(n_bands))
     cvw = ControlWork(np.zeros((n_bands, n_cv)), np.zeros((n_bands, n_cv)), np.zeros((n_bands, n_bands, n_cv)),
@@ -157,7 +185,7 @@ def work_arrays(scene, nee, scratch, tallies):
 
 
 @njit(nogil=True, no_cfunc_wrapper=True, cache=True, _nrt=False)
-def trace_photons(scene, nee, organs, seed, first, count, tallies, stats, photon, accum, cvw):
+def trace_photons(scene, nee, organs, seed, first, count, tallies, stats, photon, accum, cvw, replay):
     """The photon loop of :func:`trace_chunk` (its arguments, ``nee.organs`` as ``organs``, then its work
     arrays), compiled without
     reference counting: array views and inlined helpers here would otherwise cost an atomic
@@ -172,7 +200,7 @@ def trace_photons(scene, nee, organs, seed, first, count, tallies, stats, photon
     numba drops those branches when ``nee`` is None, so that ``weighted`` and ``analog`` compile a loop
     without them; and what next events to organs need under ``if organs is not None``
     (:class:`~kernel.records.OrganEvents`: a plant's organs are the targets), so that runs on sensors compile
-    none of it."""
+    none of it; and what the replay of a stored chamber needs under ``if replay is not None``."""
     geo, mat, emitters, sens = scene
     counters = stats.counters
     scratch, state, w, dep, seen = photon.scratch, photon.state, photon.w, photon.dep, photon.seen
@@ -211,15 +239,29 @@ def trace_photons(scene, nee, organs, seed, first, count, tallies, stats, photon
         pb = path - i * n_pass       # its band (n_pass > 1) or 0
         if pb == 0:
             seed_stream(state, seed, first + i)
-        e = pick_element(emitters, i, count, state)
-        ox, oy, oz, dx, dy, dz, enx, eny, enz, emode, oscale = emit(e, emitters, state, geo.offset_rel)
-        if n_pass == 1:
-            w[:] = 1.0
-        else:                        # this path carries its bands only
+        resumed = False              # a path from a stored start (a replay), not from a lamp
+        st = photon.leg
+        if replay is not None:
+            if replay.mode == REPLAY_CONTINUE:
+                resumed = True
+                st = replay.starts[i]
+        if resumed:
+            e = 0
+            ox, oy, oz, dx, dy, dz = st[0], st[1], st[2], st[3], st[4], st[5]
+            enx, eny, enz, emode, oscale = 0.0, 0.0, 1.0, np.int64(V_SURFACE), 0.0
             for b in range(n_bands):
-                w[b] = 1.0 if mat.band_pass[b] == pb else 0.0
+                w[b] = st[START_W + b]
+        else:
+            e = pick_element(emitters, i, count, state)
+            ox, oy, oz, dx, dy, dz, enx, eny, enz, emode, oscale = emit(e, emitters, state, geo.offset_rel)
+            if n_pass == 1:
+                w[:] = 1.0
+            else:                        # this path carries its bands only
+                for b in range(n_bands):
+                    w[b] = 1.0 if mat.band_pass[b] == pb else 0.0
         depth = 0
         vx0, vy0, vz0 = ox, oy, oz   # the vertex the current segment starts at
+        on_chamber = True            # ... and it is on the chamber or a lamp (a replay's store logs those)
         seg_plane = -1          # the current segment leaves this mirror plane, reflected, after a next-event vertex
         seg_plane2 = -1         # or leaves this one after seg_plane (two reflections after that vertex)
         wx, wy, wz = ox, oy, oz  # that next-event vertex
@@ -228,6 +270,12 @@ def trace_photons(scene, nee, organs, seed, first, count, tallies, stats, photon
         if nee is not None:
             events = n_tgt > 0 and tgt.from_emitter[e] != 0
         after_diffuse = events   # does the current segment start at a next-event vertex?
+        if resumed:              # a stored segment: covered by the gather (kernel.gather) or to be counted
+            events = False
+            after_diffuse = st[9] != 0.0
+            vx0, vy0, vz0 = st[6], st[7], st[8]
+            seg_plane = np.int64(st[10])
+            wx, wy, wz = st[11], st[12], st[13]
         vertex = Vertex(ox, oy, oz, enx, eny, enz, emode, np.int64(0), oscale, np.int64(-1))
         stat = np.int64(n_mat + e)   # the vertex's row of nee_stats
         cover = np.int64(-1)         # the plane whose near discs zone events served (next_event's cover_pid)
@@ -243,7 +291,18 @@ def trace_photons(scene, nee, organs, seed, first, count, tallies, stats, photon
         m, tri, rec, rec_analog = np.int64(0), np.int64(-1), np.int32(-1), False    # the hit (set below)
         px = py = pz = nx = ny = nz = pscale = 0.0
         while True:
-            if nee is not None and events:   # expected light of the segment leaving the vertex, if diffusely
+            if replay is not None and events and replay.mode == REPLAY_STORE:   # log, not next events
+                if on_chamber:
+                    k = replay.count[0]
+                    replay.count[0] += 1
+                    if k < replay.vpl.shape[0]:
+                        row = replay.vpl[k]
+                        row[0], row[1], row[2] = vertex.x, vertex.y, vertex.z
+                        row[3], row[4], row[5] = vertex.nx, vertex.ny, vertex.nz
+                        row[6], row[7], row[8], row[9], row[10] = vertex.mode, vertex.material, vertex.scale, vertex.tri, stat
+                        for b in range(n_bands):
+                            row[VPL_W + b] = w[b]
+            elif nee is not None and events:   # expected light of the segment leaving the vertex, if diffusely
                 if control:
                     control_deposits(vertex, w, near, mat, cv, cvw)
                 n_out = next_event(vertex, stat, (cover, n_chain), control, geo, mat, sens, tgt, zones, organs,
@@ -337,6 +396,21 @@ def trace_photons(scene, nee, organs, seed, first, count, tallies, stats, photon
             gid = load_u32(rh + GEOM_ID)
             t = math.inf if gid == INVALID_ID else float(load_f32(rh + TFAR))
             tri = -1 if gid == INVALID_ID else load_u32(rh + PRIM_ID) + geo.geom_offset[gid]
+            if replay is not None:
+                if resumed and (tri < 0 or geo.receiver[tri] < replay.organ0):
+                    break        # the chamber again: its light from here on is the store's
+                if replay.mode == REPLAY_STORE and on_chamber and not after_diffuse:
+                    hit_organ = tri >= 0 and geo.receiver[tri] >= replay.organ0
+                    if _crosses(replay.box, ox, oy, oz, dx, dy, dz, math.inf if hit_organ else t):
+                        k = replay.count[1]
+                        replay.count[1] += 1
+                        if k < replay.seg.shape[0]:
+                            row = replay.seg[k]
+                            row[0], row[1], row[2], row[3], row[4], row[5] = ox, oy, oz, dx, dy, dz
+                            row[6], row[7], row[8], row[9] = vx0, vy0, vz0, 0.0
+                            row[10], row[11], row[12], row[13] = seg_plane, wx, wy, wz
+                            for b in range(n_bands):
+                                row[START_W + b] = w[b]
 
             # transparent sensors crossed before the surface hit (exact test in float64): those Embree
             # reported, and those lying on the triangle hit, which its float32 rounding may have left out
@@ -440,9 +514,13 @@ def trace_photons(scene, nee, organs, seed, first, count, tallies, stats, photon
                     nh = record(absorbed0 + rec, dep, nh, accum)
             if nee is not None:
                 events = n_tgt > 0 and tgt.from_material[m] != 0
+            if replay is not None:
+                on_chamber = rec < replay.organ0
             if nee is not None and events:
                 cover = np.int64(geo.plane_id[tri]) if zone_on and after_diffuse else np.int64(-1)
                 organ_cover = -1.0
+                if resumed and depth == 0:    # reached from a stored vertex, which made no zone events by discs
+                    cover = np.int64(-1)      # (its organ zone events: the gather's, kernel.gather)
                 if organs is not None:
                     if organ_on and after_diffuse and geo.plane_id[tri] < 0 and rec >= 0:
                         organ_cover = (px - vx0) ** 2 + (py - vy0) ** 2 + (pz - vz0) ** 2

@@ -60,6 +60,7 @@ class Result:
     partial: bool = False
     interrupted: bool = False     # stopped by KeyboardInterrupt (Ctrl-C), not by ``stop()``
     extra: dict = field(default_factory=dict)
+    batches: int = 0              # > 0: every row's products are per batch, that many independent samples (reuse)
 
     @property
     def _fate0(self) -> int:
@@ -82,6 +83,8 @@ class Result:
     @property
     def samples(self) -> np.ndarray:
         """Independent samples behind each row's sums of products, (rows,): see :func:`effective_samples`."""
+        if self.batches:
+            return np.full(len(self.tally), float(self.batches))
         return effective_samples(self.photons, self.counters, len(self.tally), self.n_sensors)
 
     @property

@@ -133,7 +133,7 @@ def test_shadow_rays_reach_thin_sliver_triangles(tmp_path):
     state = np.zeros(1, np.uint64)
     photon = Photon(scratch.ctypes.data, state, np.ones(1), np.empty(1), np.empty(1), np.empty(1), np.empty(8, np.int64),
                     np.empty((8, 1)), np.empty(0, np.int64), np.empty(1), np.zeros(1, np.uint8), np.empty(1),
-                    np.empty((2, 5)))
+                    np.empty((2, 5)), np.empty(6))
     stats = np.zeros((len(ks.materials) + 1, 3))
     grey = ks.material_index(mats["grey"])
     vertex = Vertex(900.0, 500.0, 0.0, 0.0, 0.0, 1.0, V_SURFACE, grey, 1000.0, -1)
