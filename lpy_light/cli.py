@@ -152,6 +152,9 @@ def cmd_run(args) -> int:
     if not 0 <= args.seed <= simulate.MAX_SEED:
         raise InputError("--seed must be a whole number in 0..2^63-1")
     check_out_dir(args.out)
+    if ESTIMATORS[args.estimator].stored:
+        raise InputError("--estimator %s lights a plant's organs from a stored chamber (lpy-light grow, LightModel); "
+                         "a chamber's sensors are traced with nee" % args.estimator)
     if args.precision is not None and not 0 < args.precision < 1:
         raise InputError("--precision must be a relative σ in (0, 1), e.g. 0.01")
     if args.photons is None and args.precision is None and ESTIMATORS[args.estimator].next_events:
@@ -416,6 +419,10 @@ def _grow_parser(sub):
                         "R:FR (0.04), or on what the rules read: par=0.03 (relative), rfr=0.02 (absolute), "
                         "LO-HI=0.05 (a band's ppfd, relative), comma-separated")
     g.add_argument("--seed", type=int, default=None, help="random seed of the light model (default: the model's)")
+    g.add_argument("--estimator", choices=("nee", "reuse"), default=None,
+                   help="nee: every step traces the chamber's photons again; reuse: the chamber's light traced once "
+                        "into a store (renewed every 10 steps) and gathered at every organ each step (default: the "
+                        "model's, else nee)")
     g.add_argument("--threads", type=int, default=None, help="threads (default: all cores)")
     g.add_argument("--out", required=True, help="output folder")
     g.add_argument("--plot-every", type=_count, default=None, metavar="N",

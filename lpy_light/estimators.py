@@ -142,6 +142,7 @@ class Estimator:
     summary: str
     weighted: bool
     settings: NextEventSettings
+    stored: bool = False       # the chamber's light from a store, gathered at a plant's organs (lpy_light.reuse)
 
     @property
     def next_events(self) -> bool:
@@ -154,6 +155,8 @@ ESTIMATORS: dict = {e.name: e for e in (
     Estimator("weighted", "no next events: every photon's own hits, bands share events; for the energy closure "
                           "per material", True, NO_NEXT_EVENTS),
     Estimator("analog", "SEC2's counting: one photon, one event, raw hit counts", False, NO_NEXT_EVENTS),
+    Estimator("reuse", "plants only (LightModel, grow): the chamber's light traced once into a store, gathered at "
+                       "every organ each step through the current plant", True, NextEventSettings(), stored=True),
 )}
 DEFAULT_ESTIMATOR = "nee"
 

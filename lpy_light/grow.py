@@ -55,6 +55,7 @@ def _outside_model(args, path):
     organs = _organ_specs(args.organs)
     targets = None if args.targets is None else [t.strip() for t in args.targets.split(",") if t.strip()]
     return LightModel(args.scene, organs=organs, photons=args.photons or 1_000_000, precision=args.precision,
+                      estimator=args.estimator or "nee",
                       seed=1 if args.seed is None else args.seed, threads=args.threads, plant_unit=args.plant_unit,
                       position=None if args.at is None else _point(args.at, "--at"), parameter=None, targets=targets)
 
@@ -137,6 +138,8 @@ def cmd_grow(args) -> int:
                             ("threads", args.threads)):
             if value is not None:
                 setattr(model, name, lightmod._photons(value) if name == "photons" else value)
+    if args.estimator is not None and args.estimator != model.estimator:
+        model.use_estimator(args.estimator)
     out = Path(args.out)
     summaries, pictures = [], []
     out.mkdir(parents=True, exist_ok=True)
@@ -189,8 +192,12 @@ def cmd_grow(args) -> int:
                "precision": model.precision, "lit_from_outside": outside,
                "bands": model.chamber.band_labels, "plant_unit_m": model.scale * model.chamber.metres_per_unit,
                "position": list(map(float, model.position)), "scene": str(model.chamber.source),
-               "seed": model.seed, "estimator": model.kscene.estimator,
+               "seed": model.seed, "estimator": model.estimator,
                "settings": dataclasses.asdict(model.kscene.settings), "warnings": seen.summary()}
+    if model.keeper is not None:
+        summary["reuse"] = dataclasses.asdict(model.keeper.settings)
+        summary["stores_built"] = model.keeper.built
+        summary["store"] = None if model.keeper.store is None else model.keeper.store.describe()
     if model.last_step is not None and model.last_organs:
         pictures.append(_plant_picture(out / "plant.png", model, path, model.last_step, model.last_organs))
     summary["pictures"] = [p for p in pictures if p]

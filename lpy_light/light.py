@@ -38,11 +38,13 @@ import numpy as np
 from . import simulate, units
 from .precision import organs_sigma_over_goal, parse_goal, sigma_over_goal
 from .errors import InputError
+from .estimators import estimator as estimator_named
 from .messages import OncePerKind
 from .organ_light import (NOT_REACHED, ORGAN_COLUMNS, OrganLight, StepResult, for_rules, not_reached, organ_lights,
                           organ_rows, shading_only)
 from .organs import TessellationCache, mesh_key, organ_from_mesh, plant_material
 from .process_state import preserved_locale
+from .reuse import StoreKeeper, reuse_settings
 from .scene import UNITS, load_scene, resolve_scene
 
 log = logging.getLogger("lpy_light")
@@ -57,6 +59,8 @@ MODELS: list = []      # every LightModel made in this process, newest last (``l
 #: give the same σ; where cone rays are on (a canopy) half of it, 16 roses' cost to leaves' p90 3 % 76.5 / 80.0 →
 #: 70.0 / 73.4 CPU s (seeds 3 / 5), same σ (``benchmarks/canopy.py``)
 MIRROR_EVENTS = 0.2
+#: with the ``reuse`` estimator and a precision goal a first gather misses, the most its draws are multiplied by
+REUSE_SCALE = 16.0
 
 
 class LightModel:
@@ -142,6 +146,14 @@ class LightModel:
     colour_top : float or None
         PAR (µmol m⁻² s⁻¹) drawn in yellow in ``lpy-light grow``'s pictures: give the scale the model's
         interpretation rules use in :func:`~lpy_light.plant_view.par_colour`, so both agree.
+    estimator : str
+        ``"nee"`` (default): every step traces the chamber's photons again, next events to the organs from every
+        vertex (:mod:`lpy_light.kernel.nee`).  ``"reuse"``: the chamber's light is traced once into a store with
+        the plant in place and gathered at every organ each step through the current plant, ``photons`` then
+        unused (:mod:`lpy_light.reuse`; every organ is a target; ``docs/performance.md`` says when to use which).
+    reuse : mapping or None
+        With ``estimator="reuse"``: its settings (:class:`lpy_light.reuse.ReuseSettings`: ``store_photons``,
+        ``batches``, ``samples``, ``zone_samples``, ``image_draws``, ``paths``, ``renew``).
     one_sided_organs : bool
         An ablation for comparisons, not physics (default False): organs are seen from their front only
         (the side their right-hand-rule normal points to), as engines that cull back faces see them (the
@@ -155,7 +167,8 @@ class LightModel:
                  estimator: str = "nee", lamp_flux=None, normalisation_photons: int = 1_000_000,
                  progress=None, nee_picks: int = 2, targets=None, mirror_events: float | None = None,
                  precision=None, lamp_scale=1.0, colour_top: float | None = None,
-                 one_sided_organs: bool = False, cone_rays: float | None = None, local_rays: float | None = None):
+                 one_sided_organs: bool = False, cone_rays: float | None = None, local_rays: float | None = None,
+                 reuse=None):
         self.chamber = scene if hasattr(scene, "triangles") else load_scene(resolve_scene(str(scene)))
         if plant_unit not in UNITS:
             raise InputError("unknown plant_unit %r (use one of %s)" % (plant_unit, ", ".join(UNITS)))
@@ -166,7 +179,11 @@ class LightModel:
         self.precision = precision          # checked against the scene's bands (:func:`precision.parse_goal`)
         self.parameter = parameter
         self.progress = progress
-        self.kscene = simulate.KernelScene(self.chamber, estimator=estimator, one_sided_organs=one_sided_organs)
+        self.estimator = estimator_named(estimator).name
+        # a stored estimator traces with nee's records: the store's trace, the gather and the paths are its events
+        self.kscene = simulate.KernelScene(self.chamber, estimator="nee" if estimator_named(estimator).stored
+                                           else estimator, one_sided_organs=one_sided_organs)
+        self.keeper = StoreKeeper(reuse_settings(reuse), seed) if estimator_named(estimator).stored else None
         self.kscene.configure(**_plant_settings(nee_picks=nee_picks, cone_rays=cone_rays, local_rays=local_rays))
         _plant_settings(mirror_events=mirror_events)         # checked here, used at each step (_mirror_events)
         self.mirror_events = None if mirror_events is None else float(mirror_events)
@@ -294,6 +311,8 @@ class LightModel:
             return StepResult(self.step - 1, {}, 0, time.perf_counter() - t0, 0, 0, 0)
         outside = self._outside(organs)
         targets = None if self.targets is None else [o.module in self.targets for o in organs]
+        if self.keeper is not None:
+            targets = None               # the gather serves the organs it aims at only: every organ is one
         self.kscene.configure(sensors=False)  # steps report organs; sensors are counted, not targeted
         self.kscene.set_organs(organs, self.materials, targets)
         self.kscene.configure(images=self._mirror_events())
@@ -301,16 +320,20 @@ class LightModel:
         if not self._pruned and organs:       # once, with the first plant: which vertices see organs
             self.kscene.prune_next_events(threads=self.threads, keep=self.materials)   # organs' materials stay on
             self._pruned = True
-        read = np.ones(len(organs), bool) if targets is None else np.array(targets, bool)
+        read = (np.ones(len(organs), bool) if self.targets is None
+                else np.array([o.module in self.targets for o in organs], bool))
         precision_of = None
         if self.goal is not None and read.any():
             def precision_of(partial):          # the largest σ / goal: the goal is reached at 1
                 return step_sigma_over_goal(self.kscene, partial, np.flatnonzero(read), self.chamber, self.goal,
                                             self.flux)
         self.kscene.size_pilots(n)
-        result = simulate.run(self.kscene, n, seed=self.seed + self.step, threads=self.threads,
-                              progress=self.progress, precision=None if precision_of is None else 1.0,
-                              precision_of=precision_of)
+        if self.keeper is not None:
+            result = self._reuse_step(organs, precision_of)
+        else:
+            result = simulate.run(self.kscene, n, seed=self.seed + self.step, threads=self.threads,
+                                  progress=self.progress, precision=None if precision_of is None else 1.0,
+                                  precision_of=precision_of)
         if result.interrupted:
             raise KeyboardInterrupt      # Ctrl-C ends the growth (cmd_grow keeps the steps done), not one step
         lights = organ_lights(self.kscene, result, organs, self.flux, self.flux_std, self.chamber, read)
@@ -323,11 +346,40 @@ class LightModel:
                 self._warn_precision_short(result, organs, read)
         if outside:
             step.extra["outside_chamber"] = outside
+        if "store" in result.extra:
+            step.extra["store"] = result.extra["store"]
         compiled = getattr(self.kscene, "compile_seconds", 0.0) - compiled
         if compiled > 0:              # the kernel compiled for these organs (first run only), within the step's time
             step.extra["compile_seconds"] = compiled
         self.step += 1
         return step
+
+    def use_estimator(self, name: str, reuse=None):
+        """Light the next steps with estimator ``name`` (``nee`` or ``reuse``, both trace with nee's records;
+        ``reuse``: its settings, as the constructor's): ``lpy-light grow --estimator``."""
+        est = estimator_named(name)
+        if self.kscene.estimator != "nee" or not (est.stored or est.name == "nee"):
+            raise InputError("a light model of estimator %s cannot switch to %s (nee and reuse switch)"
+                             % (self.estimator, est.name))
+        self.estimator = est.name
+        self.keeper = StoreKeeper(reuse_settings(reuse), self.seed) if est.stored else None
+
+    def _reuse_step(self, organs, precision_of):
+        """A step of the ``reuse`` estimator (:class:`lpy_light.reuse.StoreKeeper`): one gather, and with a
+        precision goal not met, one more with the draws scaled by (σ / goal)² (at most :data:`REUSE_SCALE`), which
+        replaces it.  The store's own error is not lowered by draws: a goal below it is reported as not met."""
+        seed = self.seed + self.step
+        result = self.keeper.step(self.kscene, organs, seed, self.flux, self.threads)
+        if precision_of is not None:
+            ratio = float(precision_of(result))
+            if ratio > 1.0:
+                scale = min(REUSE_SCALE, 1.1 * ratio * ratio)
+                result = self.keeper.step(self.kscene, organs, seed + (1 << 32), self.flux, self.threads, scale)
+                ratio = float(precision_of(result))
+            result.extra["precision_reached"] = bool(ratio <= 1.0)
+        if self.progress:
+            self.progress(result.photons, result.photons, result.seconds)
+        return result
 
     def _warn_precision_short(self, result, organs, read):
         """A step that stopped at its photon cap before the precision asked of its targets says so (once per run,

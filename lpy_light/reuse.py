@@ -19,6 +19,7 @@ batches' estimates is the step's σ, the store's own error included (:attr:`lpy_
 """
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import math
 import time
@@ -27,6 +28,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .errors import InputError
 from .kernel import embree
 from .kernel.gather import cluster_cdf, gather_batch
 from .kernel.nee import NEAR
@@ -43,6 +45,63 @@ CELL = 0.1
 #: the plant's region: its bounding box grown by this share of its size and by :data:`MARGIN` metres each side
 GROWTH = 0.25
 MARGIN = 0.05
+
+
+@dataclass(frozen=True)
+class ReuseSettings:
+    """How the ``reuse`` estimator lights a plant (:class:`lpy_light.light.LightModel` ``reuse=``).
+
+    Parameters
+    ----------
+    store_photons : int
+        Photons traced into a store (its own error falls as 1/√ of it; its memory, ~300 bytes a photon).
+    batches : int
+        Independent parts of the store: a step's σ is the spread of their estimates (≥ 8).
+    samples : int
+        Draws per organ target and batch of the light coming straight from the chamber.
+    zone_samples : int or None
+        Two-step draws through the zone of each target that has one (buds), per batch (None: ``samples``).
+    image_draws : int
+        Stored vertices drawn per batch to light the organs through a mirror.
+    paths : int
+        Paths per batch traced on from the organs the draws reached (the light between organs), kept in
+        proportion to their light.
+    renew : int
+        Steps after which the store is traced again with the plant then in place (what the plant changes in the
+        chamber's light is the store's plant's until then); 0: never for that reason.
+    """
+
+    store_photons: int = 500_000
+    batches: int = 16
+    samples: int = 64
+    zone_samples: int | None = None
+    image_draws: int = 4096
+    paths: int = 1024
+    renew: int = 10
+
+    def __post_init__(self):
+        for name, lo in (("store_photons", 1), ("batches", 8), ("samples", 1), ("zone_samples", 0),
+                         ("image_draws", 0), ("paths", 0), ("renew", 0)):
+            value = getattr(self, name)
+            if value is None and name == "zone_samples":
+                continue
+            if isinstance(value, bool) or not isinstance(value, (int, float, np.integer)) or value != int(value) \
+                    or value < lo:
+                raise InputError("reuse setting %r must be a whole number >= %d, got %r" % (name, lo, value))
+            object.__setattr__(self, name, int(value))
+
+
+def reuse_settings(spec) -> ReuseSettings:
+    """``spec``: None (the defaults), a :class:`ReuseSettings`, or a mapping of its fields."""
+    if spec is None:
+        return ReuseSettings()
+    if isinstance(spec, ReuseSettings):
+        return spec
+    try:
+        return ReuseSettings(**dict(spec))
+    except TypeError:
+        raise InputError("unknown reuse setting in %r (the settings: %s)"
+                         % (dict(spec), ", ".join(f.name for f in dataclasses.fields(ReuseSettings)))) from None
 
 
 @dataclass
@@ -347,3 +406,52 @@ def _roulette(starts, n, budget, rng) -> int:
     kept[:, START_W:] /= p[keep][:, None]
     starts[:len(kept)] = kept
     return len(kept)
+
+
+class StoreKeeper:
+    """The store a growing plant is lit from: kept while it is valid, built again when it is not.
+
+    A store is traced again (:meth:`store_for`) when there is none, when what it was built for has changed (its
+    key, :func:`chamber_key`: the chamber's triangles and materials, the lamps and their flux, the sources that
+    make next events, the plant's region), when the plant has left its region, and every ``settings.renew``
+    steps.  ``built`` counts the stores traced; ``why`` says why the last one was."""
+
+    def __init__(self, settings: ReuseSettings, seed: int = 1):
+        self.settings, self.seed = settings, int(seed)
+        self.store: ChamberStore | None = None
+        self.steps = 0            # steps lit from the current store
+        self.built = 0
+        self.why = ""
+
+    def store_for(self, kscene, organs, flux=None, threads=None) -> ChamberStore:
+        s = self.store
+        cfg = self.settings
+        if s is None:
+            why = "first step"
+        elif not inside(s.box, organs):
+            why = "the plant left the store's region"
+        elif chamber_key(kscene, s.box, s.photons, s.batches, s.seed, flux) != s.key:
+            why = "the chamber, its materials or its lamps changed"
+        elif cfg.renew and self.steps >= cfg.renew:
+            why = "renewed after %d steps" % self.steps
+        else:
+            self.steps += 1
+            return s
+        self.store = build_store(kscene, cfg.store_photons, cfg.batches, seed=self.seed + 7919 * self.built,
+                                 threads=threads, flux=flux)
+        self.built += 1
+        self.why = why
+        self.steps = 1
+        return self.store
+
+    def step(self, kscene, organs, seed: int, flux=None, threads=None, scale: float = 1.0):
+        """One step's :class:`~lpy_light.simulate.Result` for ``organs`` (in ``kscene`` already), from a valid
+        store; ``scale`` multiplies the draws (a precision goal asks more)."""
+        store = self.store_for(kscene, organs, flux, threads)
+        cfg = self.settings
+        zone = cfg.samples if cfg.zone_samples is None else cfg.zone_samples
+        result = gather_step(kscene, store, samples=max(1, round(cfg.samples * scale)), seed=seed, threads=threads,
+                             paths=round(cfg.paths * scale), zone_samples=round(zone * scale),
+                             image_draws=round(cfg.image_draws * scale))
+        result.extra["store"] = dict(store.describe(), why=self.why, steps_from_it=self.steps)
+        return result
