@@ -7,12 +7,17 @@ median relative σ on PAR, the buds' median σ on R:FR, and the bias per organ a
 ``--reference`` photons on the same plant: the mean over leaves and over buds of (x − ref) / ref on PAR with its
 standard error, the mean difference of the buds' R:FR, and the share of organs within 4σ of the reference.
 
+``--spread N``: N independent stores, one gather each: each organ's spread over them against the σ it reports, and
+the bias per store against the reference (a store's own error is common to the organs it lights: the bias's
+standard error is the stores' spread).
+
 ``--renewal``: the store built with the plant of an earlier stage (``--stage - 1``) lights the last stage's plant:
 the bias of a store not renewed while the plant grew (its shadow on the table and walls, the light it sends back,
 are the earlier plant's).
 
     .venv/bin/python benchmarks/reuse.py [--reference 2e7] [--full 3e5 1.15e6 4e6] [--stores 2e5 5e5 2e6]
-                                         [--samples 32 64 128] [--renewal] [--chart docs/efficiency/reuse.png]
+                                         [--samples 32 64 128] [--renewal] [--spread 8]
+                                         [--chart docs/efficiency/reuse.png]
                                          [--csv docs/efficiency/reuse.csv]
 """
 from __future__ import annotations
@@ -88,10 +93,15 @@ def main():
     ap.add_argument("--stage", type=int, default=4)
     ap.add_argument("--stages", type=int, default=4)
     ap.add_argument("--reference", type=float, default=2e7, help="photons of the full kernel's reference")
-    ap.add_argument("--full", type=float, nargs="+", default=[3e5, 1.15e6, 4e6], help="photons of the full kernel's steps")
+    ap.add_argument("--full", type=float, nargs="*", default=[3e5, 1.15e6, 4e6], help="photons of the full kernel's steps")
     ap.add_argument("--stores", type=float, nargs="+", default=[2e5, 5e5, 2e6], help="photons of the stores")
     ap.add_argument("--samples", type=int, nargs="+", default=[32, 64, 128], help="the gather's draws per target and batch")
     ap.add_argument("--renewal", action="store_true", help="also: a store built with the plant of the stage before")
+    ap.add_argument("--spread", type=int, default=0, metavar="N",
+                    help="also: N independent stores (the middle --stores and --samples): σ against their spread, "
+                         "and the bias with its error from it")
+    ap.add_argument("--reference-cache", default=None, metavar="FILE.npz",
+                    help="keep the reference's table in FILE (read it there if it was made with the same photons)")
     ap.add_argument("--csv", default=None)
     ap.add_argument("--chart", default=None)
     args = ap.parse_args()
@@ -99,7 +109,13 @@ def main():
     model, organs = plant_model(args.stage, args.stages, args.reference)
     model.run(organs, photons=20_000)                 # compile, prune, pilots: not timed
     t = time.perf_counter()
-    ref = table(model.run(organs).organs, organs)
+    cache = Path(args.reference_cache) if args.reference_cache else None
+    if cache and cache.is_file() and float(np.load(cache)["photons"]) == args.reference:
+        ref = tuple(np.load(cache)[k] for k in ("module", "par", "par_s", "rfr", "rfr_s"))
+    else:
+        ref = table(model.run(organs).organs, organs)
+        if cache:
+            np.savez(cache, photons=args.reference, **dict(zip(("module", "par", "par_s", "rfr", "rfr_s"), ref)))
     print("reference: full kernel, %.3g photons, %.0f s" % (args.reference, time.perf_counter() - t))
     rows = []
 
@@ -153,6 +169,40 @@ def main():
         tab = table(lights_of(model, organs, result), organs)
         report({"estimator": "reuse", "setting": "stage %d's store" % (args.stage - 1), "step_s": result.seconds,
                 "store_s": 0.0, **precision(tab), **bias(tab, ref)})
+
+    if args.spread:
+        # independent stores (other seeds), one gather each: the spread of each organ's PAR over them against the σ
+        # each reports (issue 46: median ratio within 0.8-1.25), and the bias over leaves and buds with its standard
+        # error from the stores' spread (a store's error is common to the organs it lights)
+        store_photons, samples = int(args.stores[len(args.stores) // 2]), args.samples[len(args.samples) // 2]
+        tabs = []
+        for i in range(args.spread):
+            store = build_store(ks, store_photons, batches=16, seed=1000 + i, threads=2, flux=model.flux)
+            result = gather_step(ks, store, samples=samples, seed=77 + i, threads=2, paths=16 * samples,
+                                 image_draws=64 * samples)
+            tabs.append(table(lights_of(model, organs, result), organs))
+            del store
+        par = np.array([t[1] for t in tabs])
+        par_s = np.array([t[2] for t in tabs])
+        mod = tabs[0][0]
+        ok = np.all(par > 0, axis=0)
+        ratio = np.std(par[:, ok], axis=0, ddof=1) / np.median(par_s[:, ok], axis=0)
+        print("%d independent stores of %.3g photons, %d draws: per organ, spread over the stores / reported σ: "
+              "median %.3f (leaves %.3f, buds %.3f; 10-90 %%: %.2f-%.2f)"
+              % (args.spread, store_photons, samples, np.median(ratio), np.median(ratio[mod[ok] == "Leaf"]),
+                 np.median(ratio[mod[ok] == "Bud"]), *np.percentile(ratio, [10, 90])))
+        for kind in ("Leaf", "Bud"):
+            k = (mod == kind) & ok & (ref[1] > 0)
+            per_store = np.mean(par[:, k] / ref[1][k] - 1.0, axis=1)
+            print("  %s: bias against the reference per store %s; mean %+.2f %% ± %.2f (from the stores' spread)"
+                  % (kind.lower() + "s", " ".join("%+.2f" % (100 * b) for b in per_store), 100 * per_store.mean(),
+                     100 * per_store.std(ddof=1) / math.sqrt(len(per_store))))
+        rfr = np.array([t[3] for t in tabs])
+        k = (mod == "Bud") & np.all(np.isfinite(rfr), axis=0) & np.isfinite(ref[3])
+        per_store = np.mean(rfr[:, k] - ref[3][k], axis=1)
+        print("  buds' R:FR: bias per store %s; mean %+.4f ± %.4f" % (" ".join("%+.3f" % b for b in per_store),
+                                                                     per_store.mean(),
+                                                                     per_store.std(ddof=1) / math.sqrt(len(per_store))))
 
     if args.csv:
         with open(args.csv, "w", newline="") as f:
