@@ -41,9 +41,9 @@ from lpy_light.reuse import ReuseSettings, build_store, gather_step, plant_box  
 ORGANS = {"Leaf": LEAF_MATERIAL, "Internode": LEAF_MATERIAL[0], "Bud": LEAF_MATERIAL[0]}
 
 
-def plant_model(stage, stages, photons, estimator="nee"):
+def plant_model(stage, stages, photons, estimator="nee", targets=("Leaf", "Bud")):
     model = LightModel("angers-12bands", photons=int(photons), plant_unit="cm", organs=ORGANS, threads=2,
-                       estimator=estimator)
+                       estimator=estimator, targets=targets)
     organs = model.organs_from_meshes({k: (m, mat, mod) for k, (m, mat, mod) in rose(stage, stages).items()})
     return model, organs
 
@@ -51,9 +51,10 @@ def plant_model(stage, stages, photons, estimator="nee"):
 def table(lights, organs):
     """Per organ (in the organs' order): module, PAR, its σ, R:FR, its σ."""
     rows = [lights[o.key] for o in organs]
-    return (np.array([l.module for l in rows]), np.array([l.par for l in rows]), np.array([l.par_std for l in rows]),
-            np.array([np.nan if l.rfr is None else l.rfr for l in rows]),
-            np.array([np.nan if l.rfr_std is None else l.rfr_std for l in rows]))
+
+    def column(name):
+        return np.array([np.nan if getattr(l, name) is None else getattr(l, name) for l in rows], float)
+    return (np.array([l.module for l in rows]), column("par"), column("par_std"), column("rfr"), column("rfr_std"))
 
 
 def precision(tab):
@@ -84,7 +85,7 @@ def bias(tab, ref):
 
 
 def lights_of(model, organs, result):
-    read = np.ones(len(organs), bool)
+    read = np.array([o.module in ("Leaf", "Bud") for o in organs])
     return organ_lights(model.kscene, result, organs, model.flux, model.flux_std, model.chamber, read)
 
 
@@ -138,7 +139,14 @@ def main():
         report({"estimator": "nee", "setting": "%.3g photons" % photons, "step_s": dt, "store_s": 0.0,
                 **precision(tab), **bias(tab, ref)})
 
-    ks = model.kscene
+    # the reuse gathers at every organ (the internodes too: they shade and scatter), a quarter of the draws where
+    # nobody reads the numbers: a light model of its own, set up once for this plant (every organ a target)
+    rmodel, _ = plant_model(args.stage, args.stages, 20_000, estimator="reuse")
+    rmodel.flux, rmodel.flux_std = model.flux, model.flux_std
+    rmodel.keeper.settings = ReuseSettings(store_photons=16, batches=8, samples=1, image_draws=0, paths=0)
+    rmodel.run(organs)
+    ks = rmodel.kscene
+    read = np.array([o.module in ("Leaf", "Bud") for o in organs])
     for store_photons in args.stores:
         t = time.perf_counter()
         store = build_store(ks, int(store_photons), batches=16, seed=11, threads=2, flux=model.flux)
@@ -150,23 +158,23 @@ def main():
                                 image_draws=64 * samples)
             t = time.perf_counter()
             result = gather_step(ks, store, samples=cfg.samples, seed=5, threads=2, paths=cfg.paths,
-                                 image_draws=cfg.image_draws)
+                                 image_draws=cfg.image_draws, read=read)
             dt = time.perf_counter() - t
-            tab = table(lights_of(model, organs, result), organs)
+            tab = table(lights_of(rmodel, organs, result), organs)
             report({"estimator": "reuse", "setting": "store %.3g, %d draws" % (store_photons, samples), "step_s": dt,
                     "store_s": store_s, **precision(tab), **bias(tab, ref)})
         del store
 
     if args.renewal:
-        earlier = model.organs_from_meshes({k: (m, mat, mod) for k, (m, mat, mod)
+        earlier = rmodel.organs_from_meshes({k: (m, mat, mod) for k, (m, mat, mod)
                                             in rose(args.stage - 1, args.stages).items()})
-        model.run(earlier, photons=20_000)                 # the earlier plant in the scene
+        rmodel.run(earlier)                                # the earlier plant in the scene
         store = build_store(ks, int(args.stores[-1]), batches=16, seed=11, threads=2, flux=model.flux,
                             box=plant_box(organs, ks.chamber.metres_per_unit))
-        model.run(organs, photons=20_000)                  # the last stage's plant back in it
+        rmodel.run(organs)                                 # the last stage's plant back in it
         result = gather_step(ks, store, samples=args.samples[-1], seed=5, threads=2, paths=16 * args.samples[-1],
-                             image_draws=64 * args.samples[-1])
-        tab = table(lights_of(model, organs, result), organs)
+                             image_draws=64 * args.samples[-1], read=read)
+        tab = table(lights_of(rmodel, organs, result), organs)
         report({"estimator": "reuse", "setting": "stage %d's store" % (args.stage - 1), "step_s": result.seconds,
                 "store_s": 0.0, **precision(tab), **bias(tab, ref)})
 
@@ -179,8 +187,8 @@ def main():
         for i in range(args.spread):
             store = build_store(ks, store_photons, batches=16, seed=1000 + i, threads=2, flux=model.flux)
             result = gather_step(ks, store, samples=samples, seed=77 + i, threads=2, paths=16 * samples,
-                                 image_draws=64 * samples)
-            tabs.append(table(lights_of(model, organs, result), organs))
+                                 image_draws=64 * samples, read=read)
+            tabs.append(table(lights_of(rmodel, organs, result), organs))
             del store
         par = np.array([t[1] for t in tabs])
         par_s = np.array([t[2] for t in tabs])
@@ -195,7 +203,7 @@ def main():
             k = (mod == kind) & ok & (ref[1] > 0)
             per_store = np.mean(par[:, k] / ref[1][k] - 1.0, axis=1)
             print("  %s: bias against the reference per store %s; mean %+.2f %% ± %.2f (from the stores' spread)"
-                  % (kind.lower() + "s", " ".join("%+.2f" % (100 * b) for b in per_store), 100 * per_store.mean(),
+                  % ({"Leaf": "leaves", "Bud": "buds"}[kind], " ".join("%+.2f" % (100 * b) for b in per_store), 100 * per_store.mean(),
                      100 * per_store.std(ddof=1) / math.sqrt(len(per_store))))
         rfr = np.array([t[3] for t in tabs])
         k = (mod == "Bud") & np.all(np.isfinite(rfr), axis=0) & np.isfinite(ref[3])

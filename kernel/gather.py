@@ -84,7 +84,7 @@ def cluster_cdf(center, area, radius, normal, cl_pos, cl_normal, cl_up, cl_down,
 @njit(nogil=True, no_cfunc_wrapper=True, cache=True, _nrt=False)
 def gather_batch(scene, nee, organs, batch, store, cdf, targets, samples, zone_samples, image_draws, seed, tally,
                  starts, photon, stats):
-    """One batch's gather: ``samples`` draws for each target ``targets[j]`` (index into ``nee.targets``), from the
+    """One batch's gather: ``samples[j]`` draws for each target ``targets[j]`` (index into ``nee.targets``), from the
     stored vertices of this batch; deposits added to ``tally`` (rows, B); each draw that reaches its target
     written to ``starts`` (START_W + B columns) to continue from there.  Returns the number of starts.
 
@@ -98,7 +98,7 @@ def gather_batch(scene, nee, organs, batch, store, cdf, targets, samples, zone_s
     probability: the light the chamber sends the organs by its mirrors, as every vertex's image events estimate it
     in the full kernel (a stored segment leaving a mirror is then counted only where they do not cover it).
 
-    A target with an organ zone (a bud, ``organs.zones.weight`` > 0) also gets ``zone_samples`` two-step events
+    A target with an organ zone (a bud, ``organs.zones.weight`` > 0) also gets ``zone_samples[j]`` two-step events
     through its zone from vertices drawn the same way (:func:`kernel.organ_zones.zone_event_to`): the light the
     leaf and stem beside it send it, as every vertex's organ zone events estimate it in the full kernel; a path
     that reaches the zone straight from a stored vertex skips it then, as there (:func:`kernel.nee.zone_served`)."""
@@ -113,8 +113,9 @@ def gather_batch(scene, nee, organs, batch, store, cdf, targets, samples, zone_s
         t = targets[j]
         seed_stream(state, seed, batch * n_t + j)
         row_cdf = cdf[j]
-        n_zone = zone_samples if organs is not None and organs.zones.weight[t] > 0.0 else 0
-        for draw in range(samples + n_zone):
+        n_direct = samples[j]
+        n_zone = zone_samples[j] if organs is not None and organs.zones.weight[t] > 0.0 else 0
+        for draw in range(n_direct + n_zone):
             u = uniform(state)
             k = search_cdf(row_cdf, 0, n_k - 1, u)
             q = row_cdf[k] - (row_cdf[k - 1] if k > 0 else 0.0)
@@ -125,7 +126,7 @@ def gather_batch(scene, nee, organs, batch, store, cdf, targets, samples, zone_s
             i = order[search_cdf(cell_cum, lo, hi - 1, uv)]
             r = vpl[i]
             v = Vertex(r[0], r[1], r[2], r[3], r[4], r[5], np.int64(r[6]), np.int64(r[7]), r[8], np.int64(r[9]))
-            if draw >= samples:       # a two-step event through t's zone
+            if draw >= n_direct:      # a two-step event through t's zone
                 for b in range(n_bands):
                     photon.w[b] = r[VPL_W + b]
                 n_out = zone_event_to(v, (t, n_zone * q * mean_w[i] / cell_w[batch, k], 1.0), mat.max_depth,
@@ -135,7 +136,7 @@ def gather_batch(scene, nee, organs, batch, store, cdf, targets, samples, zone_s
                         tally[out_k[a], b] += out_w[a, b]
                 continue
             ex, ey, ez = r[0] - tgt.center[t, 0], r[1] - tgt.center[t, 1], r[2] - tgt.center[t, 2]
-            tscale = cell_w[batch, k] / (samples * q * mean_w[i])
+            tscale = cell_w[batch, k] / (n_direct * q * mean_w[i])
             n_out = target_event(v, (t, ex * ex + ey * ey + ez * ez, tscale), r[VPL_W:], (u1, u2, u3),
                                  np.int64(r[10]), geo, mat, sens, tgt, photon, stats, 0)
             for a in range(n_out):

@@ -329,7 +329,7 @@ class LightModel:
                                             self.flux)
         self.kscene.size_pilots(n)
         if self.keeper is not None:
-            result = self._reuse_step(organs, precision_of)
+            result = self._reuse_step(organs, precision_of, read)
         else:
             result = simulate.run(self.kscene, n, seed=self.seed + self.step, threads=self.threads,
                                   progress=self.progress, precision=None if precision_of is None else 1.0,
@@ -364,17 +364,17 @@ class LightModel:
         self.estimator = est.name
         self.keeper = StoreKeeper(reuse_settings(reuse), self.seed) if est.stored else None
 
-    def _reuse_step(self, organs, precision_of):
+    def _reuse_step(self, organs, precision_of, read):
         """A step of the ``reuse`` estimator (:class:`lpy_light.reuse.StoreKeeper`): one gather, and with a
         precision goal not met, one more with the draws scaled by (σ / goal)² (at most :data:`REUSE_SCALE`), which
         replaces it.  The store's own error is not lowered by draws: a goal below it is reported as not met."""
         seed = self.seed + self.step
-        result = self.keeper.step(self.kscene, organs, seed, self.flux, self.threads)
+        result = self.keeper.step(self.kscene, organs, seed, self.flux, self.threads, read=read)
         if precision_of is not None:
             ratio = float(precision_of(result))
             if ratio > 1.0:
                 scale = min(REUSE_SCALE, 1.1 * ratio * ratio)
-                result = self.keeper.step(self.kscene, organs, seed + (1 << 32), self.flux, self.threads, scale)
+                result = self.keeper.step(self.kscene, organs, seed + (1 << 32), self.flux, self.threads, scale, read)
                 ratio = float(precision_of(result))
             result.extra["precision_reached"] = bool(ratio <= 1.0)
         if self.progress:

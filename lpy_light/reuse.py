@@ -322,9 +322,10 @@ def target_normals(kscene, tgt) -> np.ndarray:
 
 def gather_step(kscene, store: ChamberStore, samples: int = 64, seed: int = 1, threads: int | None = None,
                 paths: int = 4096, zone_samples: int | None = None, parts=("gather", "paths", "segments"),
-                path_zones=None, path_picks=None, image_draws: int = 4096):
+                path_zones=None, path_picks=None, image_draws: int = 4096, read=None):
     """One step of the plant now in ``kscene`` lit from ``store``: ``samples`` draws per organ target and batch
-    (:func:`lpy_light.kernel.gather.gather_batch`), the paths on from there and from the stored segments
+    (:func:`lpy_light.kernel.gather.gather_batch`; a quarter of that for the organs not in ``read``, (organs,)
+    bool, None: all read), the paths on from there and from the stored segments
     (``REPLAY_CONTINUE``).  Returns a :class:`lpy_light.simulate.Result` in the store's photons, σ from its
     batches."""
     from .simulate import Result
@@ -343,6 +344,12 @@ def gather_step(kscene, store: ChamberStore, samples: int = 64, seed: int = 1, t
     if organs is None or not (organs.zones.picks > 0.0 and organs.zones.target.shape[0] > 0
                               and 0 < nee.targets.picks < n_t):
         zone_samples = 0
+    # draws per target: the organs the caller reads get ``samples``; the others (they shade and scatter, and start
+    # paths, but nobody reads their numbers) a quarter of them
+    rec = np.asarray(nee.targets.ref) - kscene.n_chamber_receivers
+    read = np.ones(n_t, bool) if read is None else np.asarray(read, bool)[np.clip(rec, 0, len(read) - 1)]
+    per_target = np.where(read, samples, max(1, samples // 4)).astype(np.int64)
+    per_zone = np.where(read, zone_samples, zone_samples // 4).astype(np.int64)
     n_bands, n_rows = kscene.n_bands, kscene.n_rows
     organ0 = kscene.n_chamber_receivers
     S = store.batches
@@ -352,9 +359,9 @@ def gather_step(kscene, store: ChamberStore, samples: int = 64, seed: int = 1, t
         scratch = embree.new_scratch()
         photon, _, _ = work_arrays(scene, nee, scratch.ctypes.data, tallies)
         tally = np.zeros((n_rows, n_bands))
-        starts = np.empty((n_t * samples + int(np.sum(store.seg_batch == b)), START_W + n_bands))
-        n_s = gather_batch(scene, nee, nee.organs, np.int64(b), store.cells, cdf, targets, np.int64(samples),
-                           np.int64(zone_samples), np.int64(image_draws), np.int64(seed), tally, starts, photon, stats)
+        starts = np.empty((int(per_target.sum()) + int(np.sum(store.seg_batch == b)), START_W + n_bands))
+        n_s = gather_batch(scene, nee, nee.organs, np.int64(b), store.cells, cdf, targets, per_target, per_zone,
+                           np.int64(image_draws), np.int64(seed), tally, starts, photon, stats)
         if "gather" not in parts:
             tally[:] = 0.0
         if "paths" not in parts:
@@ -391,6 +398,8 @@ def _roulette(starts, n, budget, rng) -> int:
     many are kept."""
     if n <= budget:
         return n
+    if budget <= 0:
+        return 0
     w = starts[:n, START_W:].mean(axis=1)
     ws = np.sort(w)[::-1]
     # w0: the largest k rows kept for sure, the rest in proportion: k + Σ_{i>k} w_i / w0 = budget
@@ -444,7 +453,7 @@ class StoreKeeper:
         self.steps = 1
         return self.store
 
-    def step(self, kscene, organs, seed: int, flux=None, threads=None, scale: float = 1.0):
+    def step(self, kscene, organs, seed: int, flux=None, threads=None, scale: float = 1.0, read=None):
         """One step's :class:`~lpy_light.simulate.Result` for ``organs`` (in ``kscene`` already), from a valid
         store; ``scale`` multiplies the draws (a precision goal asks more)."""
         store = self.store_for(kscene, organs, flux, threads)
@@ -452,6 +461,6 @@ class StoreKeeper:
         zone = cfg.samples if cfg.zone_samples is None else cfg.zone_samples
         result = gather_step(kscene, store, samples=max(1, round(cfg.samples * scale)), seed=seed, threads=threads,
                              paths=round(cfg.paths * scale), zone_samples=round(zone * scale),
-                             image_draws=round(cfg.image_draws * scale))
+                             image_draws=round(cfg.image_draws * scale), read=read)
         result.extra["store"] = dict(store.describe(), why=self.why, steps_from_it=self.steps)
         return result
