@@ -359,17 +359,16 @@ def gather_step(kscene, store: ChamberStore, samples: int = 64, seed: int = 1, t
         scratch = embree.new_scratch()
         photon, _, _ = work_arrays(scene, nee, scratch.ctypes.data, tallies)
         tally = np.zeros((n_rows, n_bands))
-        starts = np.empty((int(per_target.sum()) + int(np.sum(store.seg_batch == b)), START_W + n_bands))
+        starts = np.empty((int(per_target.sum()), START_W + n_bands))
         n_s = gather_batch(scene, nee, nee.organs, np.int64(b), store.cells, cdf, targets, per_target, per_zone,
                            np.int64(image_draws), np.int64(seed), tally, starts, photon, stats)
         if "gather" not in parts:
             tally[:] = 0.0
         if "paths" not in parts:
             n_s = 0
-        n_s = _roulette(starts, n_s, paths, np.random.default_rng([seed, b]))
         seg = store.seg[store.seg_batch == b] if "segments" in parts else store.seg[:0]
-        starts[n_s:n_s + len(seg)] = seg
-        n_s += len(seg)
+        starts = np.concatenate([_roulette(starts, n_s, paths, np.random.default_rng([seed, b])), seg])
+        n_s = len(starts)
         if n_s:
             replay = Replay(REPLAY_CONTINUE, organ0, starts[:n_s], np.zeros((1, VPL_W + n_bands)),
                             np.zeros((1, START_W + n_bands)), np.zeros(2, np.int64), store.box)
@@ -378,12 +377,12 @@ def gather_step(kscene, store: ChamberStore, samples: int = 64, seed: int = 1, t
 
     workers = max(1, threads or 2)
     with ThreadPoolExecutor(max_workers=workers) as pool:
-        parts = list(pool.map(batch, range(S)))
-    Z = np.stack([p[0] for p in parts])                  # (S, rows, B): each batch's estimate of its share
+        done = list(pool.map(batch, range(S)))
+    Z = np.stack([d[0] for d in done])                  # (S, rows, B): each batch's estimate of its share
     N = store.photons
     prod = (S / N) * np.einsum("srb,src->rbc", Z, Z)     # so that Result's σ is the spread over batches
-    counters = np.sum([p[1] for p in parts], axis=0)
-    nee_stats = np.sum([p[2] for p in parts], axis=0)
+    counters = np.sum([d[1] for d in done], axis=0)
+    nee_stats = np.sum([d[2] for d in done], axis=0)
     result = Result(N, Z.sum(axis=0), prod, counters, time.perf_counter() - t0, workers, seed, kscene.n_sensors,
                     kscene.n_receivers, estimator="reuse", materials=[m.name for m in kscene.materials],
                     nee_stats=nee_stats, batches=S)
@@ -391,30 +390,25 @@ def gather_step(kscene, store: ChamberStore, samples: int = 64, seed: int = 1, t
     return result
 
 
-def _roulette(starts, n, budget, rng) -> int:
-    """Keep about ``budget`` of the ``n`` first rows of ``starts`` (in place), each with probability
-    p = min(1, w / w₀) of its mean weight w (w₀ such that the p sum to ``budget``), its weights divided by p:
-    the paths go on from the organs in proportion to their light, as photons would land there.  Returns how
-    many are kept."""
-    if n <= budget:
-        return n
-    if budget <= 0:
-        return 0
+def _roulette(starts, n, budget, rng):
+    """About ``budget`` paths from the ``n`` first rows of ``starts``, all of the same mean weight w₀ = Σ w / budget
+    (w a row's mean over the bands): a row of weight w gives ⌊w / w₀⌋ paths, and one more with probability the
+    rest, each of its weights times w₀ / w (unbiased: w / w₀ paths of weight w₀ in expectation).  Light is then
+    traced on from the organs in proportion to it, as photons would land there, and no path carries the weight
+    of a lucky draw: a draw that deposits much (a small q) is split, not kept whole.  Returns the rows, a new
+    array."""
+    if n == 0 or budget <= 0:
+        return starts[:0]
     w = starts[:n, START_W:].mean(axis=1)
-    ws = np.sort(w)[::-1]
-    # w0: the largest k rows kept for sure, the rest in proportion: k + Σ_{i>k} w_i / w0 = budget
-    tail = np.cumsum(ws[::-1])[::-1]             # tail[i] = Σ_{j >= i} ws[j]
-    w0 = tail[0] / budget
-    for k in range(int(budget)):
-        w0 = tail[k] / (budget - k)
-        if ws[k] <= w0:
-            break
-    p = np.minimum(1.0, w / w0)
-    keep = rng.random(n) < p
-    kept = starts[:n][keep]
-    kept[:, START_W:] /= p[keep][:, None]
-    starts[:len(kept)] = kept
-    return len(kept)
+    w0 = w.sum() / budget
+    if not w0 > 0.0:
+        return starts[:0]
+    copies = np.floor(w / w0).astype(np.int64)
+    copies += rng.random(n) < (w / w0 - copies)
+    rows = np.repeat(starts[:n], copies, axis=0)
+    keep = np.repeat(w, copies)
+    rows[:, START_W:] *= (w0 / keep)[:, None]
+    return rows
 
 
 class StoreKeeper:
