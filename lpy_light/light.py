@@ -346,8 +346,9 @@ class LightModel:
                 self._warn_precision_short(result, organs, read)
         if outside:
             step.extra["outside_chamber"] = outside
-        if "store" in result.extra:
-            step.extra["store"] = result.extra["store"]
+        for key in ("store", "sigma_over_goal"):
+            if key in result.extra:
+                step.extra[key] = result.extra[key]
         compiled = getattr(self.kscene, "compile_seconds", 0.0) - compiled
         if compiled > 0:              # the kernel compiled for these organs (first run only), within the step's time
             step.extra["compile_seconds"] = compiled
@@ -366,17 +367,24 @@ class LightModel:
 
     def _reuse_step(self, organs, precision_of, read):
         """A step of the ``reuse`` estimator (:class:`lpy_light.reuse.StoreKeeper`): one gather, and with a
-        precision goal not met, one more with the draws scaled by (σ / goal)² (at most :data:`REUSE_SCALE`), which
-        replaces it.  The store's own error is not lowered by draws: a goal below it is reported as not met."""
+        precision goal not met, one more that replaces it, each organ's draws scaled by its own (σ / goal)²
+        (1.1 times, at most :data:`REUSE_SCALE`; an organ at its goal keeps its draws): a budget per organ, spent
+        where the goal is not met.  The store's own error is not lowered by draws: a goal below it is reported as
+        not met."""
         seed = self.seed + self.step
         result = self.keeper.step(self.kscene, organs, seed, self.flux, self.threads, read=read)
         if precision_of is not None:
-            ratio = float(precision_of(result))
-            if ratio > 1.0:
-                scale = min(REUSE_SCALE, 1.1 * ratio * ratio)
+            rows = np.flatnonzero(read)
+            r = self.kscene.n_sensors + self.kscene.n_chamber_receivers + rows
+            ratio = organs_sigma_over_goal(self.goal, result.tally[r], result.covariance(r), self.flux,
+                                           self.chamber.bands, self.chamber.band_labels)
+            if not np.all(ratio <= 1.0):
+                scale = np.ones(len(organs))
+                scale[rows] = np.clip(1.1 * np.where(np.isfinite(ratio), ratio, math.inf) ** 2, 1.0, REUSE_SCALE)
                 result = self.keeper.step(self.kscene, organs, seed + (1 << 32), self.flux, self.threads, scale, read)
-                ratio = float(precision_of(result))
-            result.extra["precision_reached"] = bool(ratio <= 1.0)
+            worst = float(precision_of(result))
+            result.extra["precision_reached"] = bool(worst <= 1.0)
+            result.extra["sigma_over_goal"] = worst
         if self.progress:
             self.progress(result.photons, result.photons, result.seconds)
         return result

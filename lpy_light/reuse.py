@@ -43,8 +43,8 @@ STORE_CHUNK = 16384
 #: edge of the cells that group the stored vertices for the gather's first draw, in metres
 CELL = 0.1
 #: the plant's region: its bounding box grown by this share of its size and by :data:`MARGIN` metres each side
-GROWTH = 0.25
-MARGIN = 0.05
+GROWTH = 0.5
+MARGIN = 0.2
 
 
 @dataclass(frozen=True)
@@ -141,7 +141,8 @@ class ChamberStore:
 
 def plant_box(organs, metres_per_unit: float) -> np.ndarray:
     """The region a store serves for the plant ``organs`` (chamber units): their bounding box grown by
-    :data:`GROWTH` of its size and :data:`MARGIN` metres each side; (6,) lo, hi."""
+    :data:`GROWTH` of its size and :data:`MARGIN` metres each side (a store serves a growing plant for steps: a
+    larger region costs only the segments that cross it); (6,) lo, hi."""
     pts = np.concatenate([np.asarray(o.triangles, float).reshape(-1, 3) for o in organs])
     lo, hi = pts.min(axis=0), pts.max(axis=0)
     grow = GROWTH * (hi - lo) + MARGIN / metres_per_unit
@@ -322,10 +323,10 @@ def target_normals(kscene, tgt) -> np.ndarray:
 
 def gather_step(kscene, store: ChamberStore, samples: int = 64, seed: int = 1, threads: int | None = None,
                 paths: int = 4096, zone_samples: int | None = None, parts=("gather", "paths", "segments"),
-                path_zones=None, path_picks=None, image_draws: int = 4096, read=None):
+                path_zones=None, path_picks=None, image_draws: int = 4096, read=None, scale=None):
     """One step of the plant now in ``kscene`` lit from ``store``: ``samples`` draws per organ target and batch
     (:func:`lpy_light.kernel.gather.gather_batch`; a quarter of that for the organs not in ``read``, (organs,)
-    bool, None: all read), the paths on from there and from the stored segments
+    bool, None: all read; each organ's times ``scale`` (organs,), if given), the paths on from there and from the stored segments
     (``REPLAY_CONTINUE``).  Returns a :class:`lpy_light.simulate.Result` in the store's photons, σ from its
     batches."""
     from .simulate import Result
@@ -347,9 +348,11 @@ def gather_step(kscene, store: ChamberStore, samples: int = 64, seed: int = 1, t
     # draws per target: the organs the caller reads get ``samples``; the others (they shade and scatter, and start
     # paths, but nobody reads their numbers) a quarter of them
     rec = np.asarray(nee.targets.ref) - kscene.n_chamber_receivers
-    read = np.ones(n_t, bool) if read is None else np.asarray(read, bool)[np.clip(rec, 0, len(read) - 1)]
-    per_target = np.where(read, samples, max(1, samples // 4)).astype(np.int64)
-    per_zone = np.where(read, zone_samples, zone_samples // 4).astype(np.int64)
+    organ = np.clip(rec, 0, len(kscene.organs) - 1)
+    read = np.ones(n_t, bool) if read is None else np.asarray(read, bool)[organ]
+    times = np.ones(n_t) if scale is None else np.asarray(scale, float)[organ]
+    per_target = np.maximum(1, np.round(np.where(read, samples, samples / 4) * times)).astype(np.int64)
+    per_zone = np.round(np.where(read, zone_samples, zone_samples / 4) * times).astype(np.int64)
     n_bands, n_rows = kscene.n_bands, kscene.n_rows
     organ0 = kscene.n_chamber_receivers
     S = store.batches
@@ -447,14 +450,16 @@ class StoreKeeper:
         self.steps = 1
         return self.store
 
-    def step(self, kscene, organs, seed: int, flux=None, threads=None, scale: float = 1.0, read=None):
+    def step(self, kscene, organs, seed: int, flux=None, threads=None, scale=None, read=None):
         """One step's :class:`~lpy_light.simulate.Result` for ``organs`` (in ``kscene`` already), from a valid
-        store; ``scale`` multiplies the draws (a precision goal asks more)."""
+        store; ``scale`` (organs,) multiplies each organ's draws (a precision goal asks more where it is not met;
+        the paths and image draws by their mean)."""
         store = self.store_for(kscene, organs, flux, threads)
         cfg = self.settings
         zone = cfg.samples if cfg.zone_samples is None else cfg.zone_samples
-        result = gather_step(kscene, store, samples=max(1, round(cfg.samples * scale)), seed=seed, threads=threads,
-                             paths=round(cfg.paths * scale), zone_samples=round(zone * scale),
-                             image_draws=round(cfg.image_draws * scale), read=read)
+        mean = 1.0 if scale is None else float(np.mean(scale))
+        result = gather_step(kscene, store, samples=cfg.samples, seed=seed, threads=threads,
+                             paths=round(cfg.paths * mean), zone_samples=zone, image_draws=round(cfg.image_draws * mean),
+                             read=read, scale=scale)
         result.extra["store"] = dict(store.describe(), why=self.why, steps_from_it=self.steps)
         return result

@@ -26,14 +26,16 @@ THIN, GREEN = {"reflectance": 0.4, "transmittance": 0.5}, {"reflectance": 0.3, "
 SMALL = ReuseSettings(store_photons=200_000, batches=16, samples=32, image_draws=2048, paths=512)
 
 
-def _plant(shift=0.0):
+def _plant(lift=0.0):
     leaf = trimesh.Trimesh([[-100, -100, 260], [100, -100, 260], [100, 100, 260], [-100, 100, 260]],
                            [[0, 1, 2], [0, 2, 3]])
     organs = {1: (trimesh.creation.icosphere(subdivisions=1, radius=4.0).apply_translation((0, 0, 250)), GREEN, "Bud"),
               2: (leaf, THIN, "Leaf")}
     for i in range(24):
         bud = trimesh.creation.icosphere(subdivisions=1, radius=6.0)
-        organs[10 + i] = (bud.apply_translation((-150 + 40 * (i // 5) + shift, 150 + 30 * (i % 5), 100)), GREEN, "Bud")
+        organs[10 + i] = (bud.apply_translation((-150 + 40 * (i // 5), 150 + 30 * (i % 5), 100)), GREEN, "Bud")
+    for mesh, _, _ in organs.values():
+        mesh.apply_translation((0, 0, lift))
     return organs
 
 
@@ -100,7 +102,7 @@ def test_a_store_is_never_used_stale(room, tmp_path):
     after = steps(model, 3)
     assert [s["store"] for s in after[:2]] == [changed["store"]] * 2 and after[2]["store"] != changed["store"]
     assert after[2]["why"].startswith("renewed after 3 steps"), after
-    far = steps(model, 1, _plant(shift=300.0))[0]                 # the plant moved out of the store's region
+    far = steps(model, 1, _plant(lift=400.0))[0]                  # the plant moved out of the store's region
     assert far["why"] == "the plant left the store's region", far
     edited = write_scene(tmp_path, ROOM.replace("5 0.5 0.5 0.5 0 0", "5 0.45 0.45 0.45 0 0"))   # the chamber file
     other = _model(edited, "reuse", reuse=settings)
