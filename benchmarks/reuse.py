@@ -144,6 +144,7 @@ def main():
     rmodel, _ = plant_model(args.stage, args.stages, 20_000, estimator="reuse")
     rmodel.flux, rmodel.flux_std = model.flux, model.flux_std
     rmodel.keeper.settings = ReuseSettings(store_photons=16, batches=8, samples=1, image_draws=0, paths=0)
+    n_t = len(organs)
     rmodel.run(organs)
     ks = rmodel.kscene
     read = np.array([o.module in ("Leaf", "Bud") for o in organs])
@@ -154,11 +155,10 @@ def main():
         print("store of %.3g photons: %.1f s, %d vertices, %d segments" % (store_photons, store_s, len(store.vpl),
                                                                           len(store.seg)), flush=True)
         for samples in args.samples:
-            cfg = ReuseSettings(store_photons=int(store_photons), samples=samples, paths=16 * samples,
-                                image_draws=64 * samples)
+            # paths and image draws in proportion to the draws: the defaults' (2 and 8 per organ at 64 draws)
             t = time.perf_counter()
-            result = gather_step(ks, store, samples=cfg.samples, seed=5, threads=2, paths=cfg.paths,
-                                 image_draws=cfg.image_draws, read=read)
+            result = gather_step(ks, store, samples=samples, seed=5, threads=2, paths=n_t * samples // 32,
+                                 image_draws=n_t * samples // 8, read=read)
             dt = time.perf_counter() - t
             tab = table(lights_of(rmodel, organs, result), organs)
             report({"estimator": "reuse", "setting": "store %.3g, %d draws" % (store_photons, samples), "step_s": dt,
@@ -172,8 +172,8 @@ def main():
         store = build_store(ks, int(args.stores[-1]), batches=16, seed=11, threads=2, flux=model.flux,
                             box=plant_box(organs, ks.chamber.metres_per_unit))
         rmodel.run(organs)                                 # the last stage's plant back in it
-        result = gather_step(ks, store, samples=args.samples[-1], seed=5, threads=2, paths=16 * args.samples[-1],
-                             image_draws=64 * args.samples[-1], read=read)
+        result = gather_step(ks, store, samples=args.samples[-1], seed=5, threads=2,
+                             paths=n_t * args.samples[-1] // 32, image_draws=n_t * args.samples[-1] // 8, read=read)
         tab = table(lights_of(rmodel, organs, result), organs)
         report({"estimator": "reuse", "setting": "stage %d's store" % (args.stage - 1), "step_s": result.seconds,
                 "store_s": 0.0, **precision(tab), **bias(tab, ref)})
@@ -186,8 +186,8 @@ def main():
         tabs = []
         for i in range(args.spread):
             store = build_store(ks, store_photons, batches=16, seed=1000 + i, threads=2, flux=model.flux)
-            result = gather_step(ks, store, samples=samples, seed=77 + i, threads=2, paths=16 * samples,
-                                 image_draws=64 * samples, read=read)
+            result = gather_step(ks, store, samples=samples, seed=77 + i, threads=2, paths=n_t * samples // 32,
+                                 image_draws=n_t * samples // 8, read=read)
             tabs.append(table(lights_of(rmodel, organs, result), organs))
             del store
         par = np.array([t[1] for t in tabs])

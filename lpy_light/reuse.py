@@ -61,27 +61,33 @@ class ReuseSettings:
         Draws per organ target and batch of the light coming straight from the chamber.
     zone_samples : int or None
         Two-step draws through the zone of each target that has one (buds), per batch (None: ``samples``).
-    image_draws : int
-        Stored vertices drawn per batch to light the organs through a mirror.
-    paths : int
-        Paths per batch traced on from the organs the draws reached (the light between organs), kept in
-        proportion to their light.
+    image_draws : float
+        Stored vertices drawn per organ target and batch to light the organs through a mirror.
+    paths : float
+        Paths per organ target and batch traced on from the organs the draws reached (the light between organs),
+        from each organ in proportion to its light.
     renew : int
         Steps after which the store is traced again with the plant then in place (what the plant changes in the
         chamber's light is the store's plant's until then); 0: never for that reason.
     """
 
-    store_photons: int = 500_000
+    store_photons: int = 200_000
     batches: int = 16
     samples: int = 64
     zone_samples: int | None = None
-    image_draws: int = 4096
-    paths: int = 1024
+    image_draws: float = 8.0
+    paths: float = 2.0
     renew: int = 10
 
     def __post_init__(self):
-        for name, lo in (("store_photons", 1), ("batches", 8), ("samples", 1), ("zone_samples", 0),
-                         ("image_draws", 0), ("paths", 0), ("renew", 0)):
+        for name in ("image_draws", "paths"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)) or \
+                    not 0 <= value <= 1e6:
+                raise InputError("reuse setting %r must be a number of draws per organ in 0..1e6, got %r"
+                                 % (name, value))
+            object.__setattr__(self, name, float(value))
+        for name, lo in (("store_photons", 1), ("batches", 8), ("samples", 1), ("zone_samples", 0), ("renew", 0)):
             value = getattr(self, name)
             if value is None and name == "zone_samples":
                 continue
@@ -457,9 +463,9 @@ class StoreKeeper:
         store = self.store_for(kscene, organs, flux, threads)
         cfg = self.settings
         zone = cfg.samples if cfg.zone_samples is None else cfg.zone_samples
-        mean = 1.0 if scale is None else float(np.mean(scale))
+        per = len(organs) * (1.0 if scale is None else float(np.mean(scale)))     # organ targets × their scale
         result = gather_step(kscene, store, samples=cfg.samples, seed=seed, threads=threads,
-                             paths=round(cfg.paths * mean), zone_samples=zone, image_draws=round(cfg.image_draws * mean),
-                             read=read, scale=scale)
+                             paths=max(1, round(cfg.paths * per)), zone_samples=zone,
+                             image_draws=max(1, round(cfg.image_draws * per)), read=read, scale=scale)
         result.extra["store"] = dict(store.describe(), why=self.why, steps_from_it=self.steps)
         return result

@@ -326,6 +326,25 @@ def test_the_viewer_shows_each_organs_par():
 
 @pytest.mark.lpy
 @lpy
+def test_grow_with_the_chamber_stored_once_says_which_store_lit_each_step(tmp_path):
+    """``grow --estimator reuse`` on the report's rose lit from outside (its Sweep leaves, internodes, flowers):
+    every step's organs get their light from a store, ``summary.json`` names the estimator, its settings and each
+    step's store (and why it was built), and a store serves several steps."""
+    p = _grow(SEED_ROSE, *SEED_ORGANS, "--at", "1280,860,980", "--targets", "Leaf,Bud", "--steps", 12,
+              "--estimator", "reuse", "--out", tmp_path)
+    assert p.returncode == 0, p.stderr
+    rows = _rows(tmp_path / "organs.csv")
+    leaves = [r for r in rows if r["module"] == "Leaf" and r["step"] == "11"]
+    assert leaves and all(float(r["par"]) > 0 and 0 < float(r["par_std"]) < float(r["par"]) for r in leaves)
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert summary["estimator"] == "reuse" and summary["reuse"]["renew"] == 10
+    stores = [s["store"]["store"] for s in summary["steps"] if "store" in s]
+    assert len(stores) == 12 and 1 <= summary["stores_built"] == len(set(stores)) < 12
+    assert summary["steps"][0]["store"]["why"] == "first step"
+
+
+@pytest.mark.lpy
+@lpy
 def test_a_model_that_does_not_call_us_lit_from_outside(tmp_path):
     """The report's rose-simple4.lpy, unchanged (positional parameters, Sweep leaves, an EndEach of its own):
     ``grow --organs ... --at`` lights steps N, 2N, ... and the last, without a line of lpy-light in the model."""

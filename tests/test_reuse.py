@@ -23,7 +23,7 @@ ROOM = ("void plastic grey\n0\n0\n5 0.5 0.5 0.5 0 0\n\n"
         + rad_polygon("diffuser", "sheet", [(200, 200, 950), (800, 200, 950), (800, 800, 950), (200, 800, 950)])
         + "lamp cylinder tube\n0\n0\n7 300 500 1020 700 500 1020 5\n\n")
 THIN, GREEN = {"reflectance": 0.4, "transmittance": 0.5}, {"reflectance": 0.3, "transmittance": 0.3}
-SMALL = ReuseSettings(store_photons=200_000, batches=16, samples=32, image_draws=2048, paths=512)
+SMALL = ReuseSettings(store_photons=200_000, batches=16, samples=32, image_draws=80, paths=20)
 
 
 def _plant(lift=0.0):
@@ -78,7 +78,7 @@ def test_a_store_is_never_used_stale(room, tmp_path):
     """A new store when a lamp's output, a material, the chamber file or the plant's position changes, and after
     ``renew`` steps; the same one otherwise.  Each change is made as a user would make it (a new flux, an edited
     material table, an edited .rad file, the plant moved), and ``StepResult.extra['store']`` names the store."""
-    settings = ReuseSettings(store_photons=20_000, batches=8, samples=2, image_draws=64, paths=32, renew=3)
+    settings = ReuseSettings(store_photons=20_000, batches=8, samples=2, image_draws=2, paths=1, renew=3)
     organs = _plant()
 
     def steps(model, n, plant=organs):
@@ -113,7 +113,7 @@ def test_a_store_is_never_used_stale(room, tmp_path):
 def test_a_reuse_step_is_the_same_on_any_number_of_threads(room):
     """Store and gather per batch, each batch's draws from its own random streams, summed in batch order: the
     same numbers bit for bit on 1 and 3 threads."""
-    settings = ReuseSettings(store_photons=40_000, batches=8, samples=4, image_draws=128, paths=64)
+    settings = ReuseSettings(store_photons=40_000, batches=8, samples=4, image_draws=4, paths=2)
     out = []
     for threads in (1, 3):
         model = _model(room, "reuse", reuse=settings)
