@@ -11,7 +11,9 @@ CPU seconds × (p90 / 3 %)², σ ∝ 1/√N), then the cost ratio to one rose an
     .venv/bin/python benchmarks/canopy.py [--roses 1 4 9 16] [--photons 1e6] [--estimators nee weighted analog]
                                           [--cones N] [--out docs/efficiency]
 
-Costs are CPU seconds (steadier than wall time on a shared machine; with 2 threads ≈ 2 × wall when quiet).
+Costs are CPU seconds (steadier than wall time on a shared machine; with 2 threads ≈ 2 × wall when quiet).  For
+``reuse`` a step's cost is its gather's plus a tenth of its first step's (the store traced once per ``renew`` = 10
+steps).
 """
 import argparse
 import csv
@@ -51,9 +53,14 @@ def step(organs, estimator, photons, threads, seed=3, cones=None):
                        organs={"Leaf": bush.LEAF_MATERIAL, "Internode": bush.LEAF_MATERIAL[0],
                                "Bud": bush.LEAF_MATERIAL[0]})
     converted = model.organs_from_meshes(organs)
+    store_cpu = 0.0
+    if model.keeper is not None:      # reuse: the store is traced once per ``renew`` steps, its cost shared by them
+        cpu = time.process_time()
+        model.run(converted)
+        store_cpu = (time.process_time() - cpu) / model.keeper.settings.renew
     t, cpu = time.perf_counter(), time.process_time()
     result = model.run(converted)
-    wall, cpu = time.perf_counter() - t, time.process_time() - cpu
+    wall, cpu = time.perf_counter() - t, time.process_time() - cpu + store_cpu
     rel = lambda mod: np.array([l.par_std / l.par for l in result.organs.values()      # noqa: E731
                                 if l.module == mod and l.role == "target" and l.par > 0])
     leaves, buds = rel("Leaf"), rel("Bud")
