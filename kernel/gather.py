@@ -121,9 +121,11 @@ def gather_batch(scene, nee, organs, batch, store, cdf, targets, samples, zone_s
             q = row_cdf[k] - (row_cdf[k - 1] if k > 0 else 0.0)
             lo, hi = cell_start[batch, k], cell_start[batch, k + 1]
             u1, u2, u3, uv = uniform(state), uniform(state), uniform(state), uniform(state)
-            if hi <= lo or not q > 0.0:
-                continue
+            if hi <= lo or not q > 0.0 or not cell_w[batch, k] > 0.0:
+                continue              # no light in this cell of this batch
             i = order[search_cdf(cell_cum, lo, hi - 1, uv)]
+            if not mean_w[i] > 0.0:
+                continue
             r = vpl[i]
             v = Vertex(r[0], r[1], r[2], r[3], r[4], r[5], np.int64(r[6]), np.int64(r[7]), r[8], np.int64(r[9]))
             if draw >= n_direct:      # a two-step event through t's zone
@@ -153,14 +155,16 @@ def gather_batch(scene, nee, organs, batch, store, cdf, targets, samples, zone_s
                 n_starts += 1
     mir = nee.mirrors
     lo, hi = cell_start[batch, 0], cell_start[batch, n_k]
-    if image_draws > 0 and mir.plane.shape[0] > 0 and hi > lo:
-        w_batch = 0.0
-        for k in range(n_k):
-            w_batch += cell_w[batch, k]
+    w_batch = 0.0
+    for k in range(n_k):
+        w_batch += cell_w[batch, k]
+    if image_draws > 0 and mir.plane.shape[0] > 0 and hi > lo and w_batch > 0.0:
         stat0 = np.int64(mat.prob.shape[0] + tgt.from_emitter.shape[0])
         seed_stream(state, seed ^ IMAGE_STREAM, batch)
         for _ in range(image_draws):
             i = order[search_cdf(batch_cum, lo, hi - 1, uniform(state))]
+            if not mean_w[i] > 0.0:
+                continue
             r = vpl[i]
             scale = w_batch / (image_draws * mean_w[i])
             for b in range(n_bands):

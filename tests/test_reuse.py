@@ -129,3 +129,11 @@ def test_reuse_settings_and_the_run_command_refuse_what_they_cannot_do(room, tmp
         _model(room, "reuse", reuse={"photons": 10})
     from lpy_light.cli import main
     assert main(["run", str(room), "--estimator", "reuse", "--out", str(tmp_path / "r")]) == 2
+
+
+def test_a_store_too_small_to_light_every_cell_gives_a_step_not_an_error(room):
+    """A store of a few photons leaves most clusters without light in most batches: their draws are empty, the
+    step has numbers (zeros where nothing was drawn), no division by zero."""
+    model = _model(room, "reuse", reuse=ReuseSettings(store_photons=16, batches=8, samples=2, image_draws=1, paths=1))
+    light, sigma = _light(model, _plant())
+    assert np.all(np.isfinite(light)) and np.all(light >= 0)
