@@ -328,23 +328,22 @@ def target_normals(kscene, tgt) -> np.ndarray:
 
 
 def gather_step(kscene, store: ChamberStore, samples: int = 64, seed: int = 1, threads: int | None = None,
-                paths: int = 4096, zone_samples: int | None = None, parts=("gather", "paths", "segments"),
-                path_zones=None, path_picks=None, image_draws: int = 4096, read=None, scale=None):
-    """One step of the plant now in ``kscene`` lit from ``store``: ``samples`` draws per organ target and batch
-    (:func:`lpy_light.kernel.gather.gather_batch`; a quarter of that for the organs not in ``read``, (organs,)
-    bool, None: all read; each organ's times ``scale`` (organs,), if given), the paths on from there and from the stored segments
-    (``REPLAY_CONTINUE``).  Returns a :class:`lpy_light.simulate.Result` in the store's photons, σ from its
-    batches."""
+                paths: int = 1024, zone_samples: int | None = None, image_draws: int = 4096, read=None, scale=None,
+                parts=("gather", "paths", "segments")):
+    """One step of the plant now in ``kscene`` lit from ``store``; returns a :class:`lpy_light.simulate.Result` in
+    the store's photons, σ from its batches.
+
+    Per organ target and batch: ``samples`` draws of the chamber's direct light and ``zone_samples`` (default
+    ``samples``) two-step draws through a bud's zone (:func:`lpy_light.kernel.gather.gather_batch`), a quarter of
+    those for the organs not in ``read`` ((organs,) bool; None: all read), each organ's times ``scale``
+    ((organs,), if given); per batch, ``image_draws`` vertices lighting the organs through a mirror and ``paths``
+    paths traced on from the organs reached (:func:`_roulette`), with the stored segments (``REPLAY_CONTINUE``).
+    ``parts``: which of the three to tally (a diagnostic: each part's share and noise)."""
     from .simulate import Result
     t0 = time.perf_counter()
     zone_samples = samples if zone_samples is None else int(zone_samples)
     scene, _, nee, nee_paths = reuse_records(kscene)
     cdf = gather_cdf(kscene, store, nee)
-    if nee.organs is not None and path_zones is not None:
-        nee_paths = nee_paths._replace(organs=nee.organs._replace(zones=nee.organs.zones._replace(picks=float(path_zones))))
-    if nee.organs is not None and path_picks is not None:
-        nee_paths = nee_paths._replace(organs=nee_paths.organs._replace(pick_mean=0.0),
-                                       targets=nee_paths.targets._replace(picks=int(path_picks)))
     n_t = len(nee.targets.kind)
     targets = np.arange(n_t, dtype=np.int64)
     organs = nee.organs       # organ zone events as the kernel makes them (kernel.trace: organ_on), or none

@@ -137,3 +137,16 @@ def test_a_store_too_small_to_light_every_cell_gives_a_step_not_an_error(room):
     model = _model(room, "reuse", reuse=ReuseSettings(store_photons=16, batches=8, samples=2, image_draws=1, paths=1))
     light, sigma = _light(model, _plant())
     assert np.all(np.isfinite(light)) and np.all(light >= 0)
+
+
+def test_a_sweep_of_growth_runs_passes_the_estimator_to_each():
+    """``lpy-light sweep MODEL.lpy --set SEED=1..2 --estimator reuse``: every run is ``grow ... --estimator
+    reuse``, which ``grow`` accepts (and ``run`` refuses, test above)."""
+    from pathlib import Path
+
+    from lpy_light import sweep
+    from lpy_light.cli import _parser
+    rose = Path(__file__).resolve().parent.parent / "lsystems" / "rose.lpy"
+    tasks = sweep.tasks_for([str(rose)], ["SEED=1..2"], ["--estimator", "reuse"])
+    assert len(tasks) == 2 and all(t.argv[t.argv.index("--estimator") + 1] == "reuse" for t in tasks)
+    assert _parser().parse_args(tasks[0].argv + ["--out", "x"]).estimator == "reuse"
