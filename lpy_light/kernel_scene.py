@@ -453,12 +453,16 @@ class KernelScene:
                 total = total + part
         return total
 
+    @property
+    def n_stats(self) -> int:
+        """Rows of the next-event statistics: one per material, lamp element and mirror plane."""
+        return len(self.materials) + len(self.emit_nee) + len(self.mir_point)
+
     def trace(self, seed: int, first: int, count: int, records=None):
         """Trace one chunk through ``records`` (default: :meth:`records` now); returns (tally, tally_sq,
         counters, nee_stats)."""
         scene, nee = self.records() if records is None else records
-        tallies, stats = new_tallies(self.n_rows, self.n_bands,
-                                     len(self.materials) + len(self.emit_nee) + len(self.mir_point), N_COUNTERS)
+        tallies, stats = new_tallies(self.n_rows, self.n_bands, self.n_stats, N_COUNTERS)
         scratch = embree.new_scratch()
         trace_chunk(scene, nee, scratch.ctypes.data, seed, first, count, tallies, stats)
         return tallies.tally, tallies.tally_sq, stats.counters, stats.nee_stats

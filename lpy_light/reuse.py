@@ -200,7 +200,7 @@ def build_store(kscene, photons: int, batches: int = 16, seed: int = 1, threads:
         while True:
             replay = Replay(REPLAY_STORE, organ0, np.zeros((1, START_W + n_bands)), np.empty((cap_v, VPL_W + n_bands)),
                             np.empty((cap_s, START_W + n_bands)), np.zeros(2, np.int64), box)
-            tallies, stats = new_tallies(kscene.n_rows, n_bands, _n_stats(kscene), N_COUNTERS)
+            tallies, stats = new_tallies(kscene.n_rows, n_bands, kscene.n_stats, N_COUNTERS)
             scratch = embree.new_scratch()
             trace_chunk(scene, nee, scratch.ctypes.data, seed, first, count, tallies, stats, replay)
             n_v, n_s = int(replay.count[0]), int(replay.count[1])
@@ -219,10 +219,6 @@ def build_store(kscene, photons: int, batches: int = 16, seed: int = 1, threads:
     store.cells, store.clusters = _cells(kscene, store)
     store.seconds = time.perf_counter() - t0
     return store
-
-
-def _n_stats(kscene) -> int:
-    return len(kscene.materials) + len(kscene.emit_nee) + len(getattr(kscene, "mir_point", ()))
 
 
 def vertex_light(kscene, vpl) -> np.ndarray:
@@ -366,7 +362,7 @@ def gather_step(kscene, store: ChamberStore, samples: int = 64, seed: int = 1, t
     S = store.batches
 
     def batch(b):
-        tallies, stats = new_tallies(n_rows, n_bands, _n_stats(kscene), N_COUNTERS)
+        tallies, stats = new_tallies(n_rows, n_bands, kscene.n_stats, N_COUNTERS)
         scratch = embree.new_scratch()
         photon, _, _ = work_arrays(scene, nee, scratch.ctypes.data, tallies)
         tally = np.zeros((n_rows, n_bands))
