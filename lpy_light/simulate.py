@@ -261,7 +261,7 @@ def run(kscene: KernelScene, photons: int, seed: int = 1, threads: int | None = 
         raise InputError("the seed must be a whole number in 0..2^63-1, got %r" % (seed,))
     executor = executor if executor is not None else LocalThreads(threads)
     n_chunks = math.ceil(photons / CHUNK)
-    n_stats = kscene.n_stats
+    n_stats = len(kscene.materials) + len(kscene.emit_nee) + len(getattr(kscene, "mir_point", ()))
     check_memory(kscene.n_rows, kscene.n_bands, min(getattr(executor, "threads", 1), n_chunks), n_stats=n_stats)
     acc = [np.zeros((kscene.n_rows, kscene.n_bands)), np.zeros((kscene.n_rows, kscene.n_bands, kscene.n_bands)),
            np.zeros(N_COUNTERS, np.int64), np.zeros((n_stats, 3))]
