@@ -58,12 +58,14 @@ _BUILD_QUALITY_HIGH = 2
 FEATURE_ALL = 0xFFFFFFFF
 
 #: Embree's device configuration.  Embree picks its code path (BVH layout, SIMD width of the triangle tests)
-#: from the CPU, and two paths can round a hit differently at a shared edge: the same seed then gave other
-#: numbers on an AVX-512 machine than on an AVX2 one (the rose of ``tests/test_kernel_digests.py``).  Capping
-#: the path at AVX2 gives every x86-64 machine with AVX2 (all servers since ~2013) the same numbers, so a run
-#: split over a Dask cluster of mixed machines equals the same run on one; speed is the same within noise
-#: (Angers, 1e7 photons, nee: 8.1-9.4 s either way on an AVX-512 machine).
-DEVICE_CONFIG = b"verbose=0,max_isa=avx2"
+#: from the CPU, and each path rounds its ray tests its own way (as do Intel's and AMD's approximate
+#: reciprocals on one path): the kernel takes only which triangle a ray meets from Embree and computes where
+#: itself (:func:`kernel.rays.hit_point`), and the path is capped at AVX2, the widest every x86-64 server since
+#: ~2013 runs; speed is the same within noise (Angers, 1e7 photons, nee: 8.1-9.4 s either way on an AVX-512
+#: machine).  Which machines still give the same bits: :mod:`kernel.fingerprint`.
+#: ``LPY_LIGHT_EMBREE_ISA`` (sse4.2, avx, avx2) takes another of Embree's code paths on this machine: how the
+#: tests see what another processor's rounding does to a run (``tests/test_kernel_digests.py``).
+DEVICE_CONFIG = b"verbose=0,max_isa=" + os.environ.get("LPY_LIGHT_EMBREE_ISA", "avx2").encode()
 
 
 def _find_library() -> str:

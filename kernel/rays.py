@@ -1,11 +1,16 @@
 """Ray queries: what a ray from a point meets first, through Embree's ``rtcIntersect1`` / ``rtcOccluded1``.
 
 Rays are written into one thread's scratch block (:func:`kernel.embree.new_scratch`) as float32, as Embree
-wants them; hit points are recomputed in float64 on the kernel's own triangles.  Where coincident coplanar
+wants them.  Embree answers *which* triangle a ray meets; *where* is computed here, in float64, on the kernel's
+own triangle (:func:`hit_point`): Embree's own distance and barycentrics divide through an approximate
+reciprocal (``rcpps`` and a Newton step) whose last bits differ between Intel and AMD processors and between
+Embree's code paths, so numbers built on them would differ from machine to machine.  Where coincident coplanar
 surfaces cover a point (``coplanar = "random"``), what a photon meets there is one of those facing it,
-chosen uniformly at random (:func:`pick_coplanar`), not whichever Embree's float32 tie returns.  Lengths
-in scene units; directions unit vectors.
+chosen uniformly at random by rank in index order (:func:`pick_coplanar`), not whichever Embree's float32
+tie returns.  Lengths in scene units; directions unit vectors.
 """
+import math
+
 
 from .embree import ARGS, CAND_COUNT, DIR, GEOM_ID, HIT_U, HIT_V, INVALID_ID, MASK, ORG, PRIM_ID, RAYHIT, TFAR, TNEAR
 from .jit import helper
@@ -53,6 +58,42 @@ def magnitude(v):
 
 
 @helper
+def hit_point(geo, scratch, k):
+    """Where the ray in the scratch block (the float32 origin and direction Embree traced) meets the plane of
+    triangle ``k`` (global index), in float64 on the kernel's own vertices: ``(t, x, y, z)``.  Möller-Trumbore's
+    barycentrics, clamped onto the triangle (Embree found the hit inside it; float64 may put it a rounding
+    outside); the point is their combination of the vertices, so it lies on the triangle's plane to float64
+    precision even on sliver triangles, where o + t·d with a float32 t would not.  Plain IEEE arithmetic:
+    the same bits on every x86-64 processor.  A ray parallel to the plane (a degenerate hit) falls back on
+    Embree's own answer."""
+    rh = scratch + RAYHIT
+    ox, oy, oz = float(load_f32(rh + ORG)), float(load_f32(rh + ORG + 4)), float(load_f32(rh + ORG + 8))
+    dx, dy, dz = float(load_f32(rh + DIR)), float(load_f32(rh + DIR + 4)), float(load_f32(rh + DIR + 8))
+    a = geo.verts[k]
+    e1x, e1y, e1z = a[1, 0] - a[0, 0], a[1, 1] - a[0, 1], a[1, 2] - a[0, 2]
+    e2x, e2y, e2z = a[2, 0] - a[0, 0], a[2, 1] - a[0, 1], a[2, 2] - a[0, 2]
+    px, py, pz = dy * e2z - dz * e2y, dz * e2x - dx * e2z, dx * e2y - dy * e2x
+    det = e1x * px + e1y * py + e1z * pz
+    if det != 0.0 and math.isfinite(det):
+        inv = 1.0 / det
+        sx, sy, sz = ox - a[0, 0], oy - a[0, 1], oz - a[0, 2]
+        bu = (sx * px + sy * py + sz * pz) * inv
+        qx, qy, qz = sy * e1z - sz * e1y, sz * e1x - sx * e1z, sx * e1y - sy * e1x
+        bv = (dx * qx + dy * qy + dz * qz) * inv
+        t = (e2x * qx + e2y * qy + e2z * qz) * inv
+        bu = max(bu, 0.0)
+        bv = max(bv, 0.0)
+        if bu + bv > 1.0:
+            s = bu + bv
+            bu, bv = bu / s, bv / s
+    else:
+        bu, bv, t = float(load_f32(rh + HIT_U)), float(load_f32(rh + HIT_V)), float(load_f32(rh + TFAR))
+    b0 = 1.0 - bu - bv
+    return (t, b0 * a[0, 0] + bu * a[1, 0] + bv * a[2, 0], b0 * a[0, 1] + bu * a[1, 1] + bv * a[2, 1],
+            b0 * a[0, 2] + bu * a[1, 2] + bv * a[2, 2])
+
+
+@helper
 def competes(j, px, py, pz, dx, dy, dz, geo):
     """Does triangle j contain p (on its plane) and face the ray (or is it two-sided)?"""
     box, verts = geo.cop_box, geo.verts
@@ -82,26 +123,38 @@ def partner_free(tri, px, py, pz, geo):
 
 @helper
 def pick_coplanar(tri, px, py, pz, dx, dy, dz, geo, state):
-    """One of ``tri`` and its coplanar partners that contain p and face the ray, uniformly at random
-    (reservoir sampling: one random number per competing partner, none where there is none)."""
+    """One of ``tri`` and its coplanar partners that contain p and face the ray, uniformly at random: one random
+    number where there are several, none where there is one; the one picked is the r-th in index order, so the
+    pick does not depend on which of them Embree's float32 tie returned."""
     if partner_free(tri, px, py, pz, geo):
         return tri                                  # where no partner reaches
-    chosen = tri
+    start, end = geo.cop_start[tri], geo.cop_start[tri + 1]
     n_in = 1
-    for a in range(geo.cop_start[tri], geo.cop_start[tri + 1]):
-        j = geo.cop_list[a]
-        if competes(j, px, py, pz, dx, dy, dz, geo):
+    for a in range(start, end):
+        if competes(geo.cop_list[a], px, py, pz, dx, dy, dz, geo):
             n_in += 1
-            if uniform(state) * n_in < 1.0:
-                chosen = j
-    return chosen
+    if n_in == 1:
+        return tri
+    r = min(int(uniform(state) * n_in), n_in - 1)
+    for a in range(start - 1, end):                 # a == start - 1 stands for tri itself
+        m = tri if a < start else geo.cop_list[a]
+        if m != tri and not competes(m, px, py, pz, dx, dy, dz, geo):
+            continue
+        rank = 1 if tri < m else 0
+        for b in range(start, end):
+            j = geo.cop_list[b]
+            if j < m and competes(j, px, py, pz, dx, dy, dz, geo):
+                rank += 1
+        if rank == r:
+            return m
+    return tri
 
 
 @helper
 def first_hit(geo, scratch, ox, oy, oz, dx, dy, dz, tfar, state):
     """The first surface a ray from o (already off its surface) along unit d meets within ``tfar``:
     ``(triangle, x, y, z)``, triangle -1 where none; the point from Embree's barycentric coordinates on the
-    triangle's own vertices (float64), coincident surfaces picked as a photon picks among them."""
+    triangle's own vertices (float64, :func:`hit_point`), coincident surfaces picked as a photon picks among them."""
     rh = scratch + RAYHIT
     set_ray(scratch, ox, oy, oz, dx, dy, dz, tfar)
     call_ptr3(geo.intersect, geo.scene, rh, scratch + ARGS)
@@ -109,12 +162,7 @@ def first_hit(geo, scratch, ox, oy, oz, dx, dy, dz, tfar, state):
     if gid == INVALID_ID:
         return -1, ox, oy, oz
     k = load_u32(rh + PRIM_ID) + geo.geom_offset[gid]
-    bu, bv = load_f32(rh + HIT_U), load_f32(rh + HIT_V)
-    a = geo.verts[k]
-    b0 = 1.0 - bu - bv
-    px = b0 * a[0, 0] + bu * a[1, 0] + bv * a[2, 0]
-    py = b0 * a[0, 1] + bu * a[1, 1] + bv * a[2, 1]
-    pz = b0 * a[0, 2] + bu * a[1, 2] + bv * a[2, 2]
+    _, px, py, pz = hit_point(geo, scratch, k)
     if geo.cop_start[k + 1] > geo.cop_start[k]:   # coincident surfaces: as a photon picks among them
         k = pick_coplanar(k, px, py, pz, dx, dy, dz, geo, state)
     return k, px, py, pz
@@ -131,15 +179,11 @@ def hit_on_plane(geo, scratch, plane_of, plane, dx, dy, dz, state):
     gid = load_u32(rh + GEOM_ID)
     if gid == INVALID_ID:
         return -1, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0
-    cop_start, verts = geo.cop_start, geo.verts
+    cop_start = geo.cop_start
     tri = load_u32(rh + PRIM_ID) + geo.geom_offset[gid]
     if plane_of[tri] != plane and cop_start[tri + 1] == cop_start[tri]:
         return -1, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0
-    bu, bv = load_f32(rh + HIT_U), load_f32(rh + HIT_V)
-    b0 = 1.0 - bu - bv
-    hx = b0 * verts[tri, 0, 0] + bu * verts[tri, 1, 0] + bv * verts[tri, 2, 0]
-    hy = b0 * verts[tri, 0, 1] + bu * verts[tri, 1, 1] + bv * verts[tri, 2, 1]
-    hz = b0 * verts[tri, 0, 2] + bu * verts[tri, 1, 2] + bv * verts[tri, 2, 2]
+    _, hx, hy, hz = hit_point(geo, scratch, tri)
     if cop_start[tri + 1] > cop_start[tri]:
         tri = pick_coplanar(tri, hx, hy, hz, dx, dy, dz, geo, state)
     if plane_of[tri] != plane:
@@ -167,9 +211,11 @@ def reaches(geo, scratch, origin, direction, near, far, receiver, point):
     set_ray(scratch, ox, oy, oz, dx, dy, dz, far)
     call_ptr3(geo.intersect, geo.scene, scratch + RAYHIT, scratch + ARGS)
     gid = load_u32(scratch + RAYHIT + GEOM_ID)
-    if gid == INVALID_ID or load_f32(scratch + RAYHIT + TFAR) < near:
+    if gid == INVALID_ID:
         return 0.0
     tri = load_u32(scratch + RAYHIT + PRIM_ID) + geo.geom_offset[gid]
+    if hit_point(geo, scratch, tri)[0] < near:
+        return 0.0
     mine = 1 if geo.receiver[tri] == receiver else 0
     if geo.cop_start[tri + 1] == geo.cop_start[tri] or partner_free(tri, px, py, pz, geo):
         return float(mine)                                  # no partner reaches x

@@ -44,14 +44,14 @@ from numba import njit
 
 from .cones import CONE_DATA, cone_events, local_events
 from .control import add_control, control_deposits, control_products, fold_control
-from .embree import ARGS, CAND, CAND_CAP, CAND_COUNT, GEOM_ID, HIT_U, HIT_V, INVALID_ID, PRIM_ID, RAYHIT, TFAR
+from .embree import ARGS, CAND, CAND_CAP, CAND_COUNT, GEOM_ID, INVALID_ID, PRIM_ID, RAYHIT
 from .emission import emit, pick_element
 from .images import double_image_counted, double_image_event, image_counted, image_event
 from .jit import helper
 from .nee import OWN_SAMPLES, next_event
 from .organ_zones import organ_zone_event
 from .ptr import call_ptr3, load_f32, load_i64, load_u32
-from .rays import magnitude, pick_coplanar, set_ray
+from .rays import hit_point, magnitude, pick_coplanar, set_ray
 from .records import (ABSORB, DIFFUSE_R, DIFFUSE_T, REPLAY_CONTINUE, REPLAY_STORE, SENSOR_DISC, SPECULAR_R, START_W,
                       V_SURFACE, VPL_W, Accumulator, ControlWork, Photon, Vertex)
 from .rng import n_draws, seed_stream, uniform
@@ -394,8 +394,10 @@ def trace_photons(scene, nee, organs, seed, first, count, tallies, stats, photon
             call_ptr3(geo.intersect, geo.scene, rh, args)
             counters[C_RAYS] += 1
             gid = load_u32(rh + GEOM_ID)
-            t = math.inf if gid == INVALID_ID else float(load_f32(rh + TFAR))
             tri = -1 if gid == INVALID_ID else load_u32(rh + PRIM_ID) + geo.geom_offset[gid]
+            # where: on our float64 triangle (hit_point), not from Embree's float32 t and barycentrics, whose
+            # last bits depend on the processor
+            t, px, py, pz = (math.inf, ox, oy, oz) if tri < 0 else hit_point(geo, scratch, tri)
             if replay is not None:
                 if resumed and (tri < 0 or geo.receiver[tri] < replay.organ0):
                     break        # the chamber again: its light from here on is the store's
@@ -463,15 +465,6 @@ def trace_photons(scene, nee, organs, seed, first, count, tallies, stats, photon
             if gid == INVALID_ID:
                 nh = record(f_escaped, w, nh, accum)
                 break
-            # the hit point from Embree's barycentrics on our float64 triangle: on its plane to float64
-            # precision.  o + t·d is not: Embree's t carries the float32 error of the triangle's plane seen
-            # from the ray's origin (~1e-5 of t on thin sliver triangles, as leaf fans have), which can put
-            # o + t·d behind the surface, farther than any sane offset.
-            bu, bv = load_f32(rh + HIT_U), load_f32(rh + HIT_V)
-            b0 = 1.0 - bu - bv
-            px = b0 * verts[tri, 0, 0] + bu * verts[tri, 1, 0] + bv * verts[tri, 2, 0]
-            py = b0 * verts[tri, 0, 1] + bu * verts[tri, 1, 1] + bv * verts[tri, 2, 1]
-            pz = b0 * verts[tri, 0, 2] + bu * verts[tri, 1, 2] + bv * verts[tri, 2, 2]
             if not (math.isfinite(px) and math.isfinite(py) and math.isfinite(pz)):
                 counters[C_LOST] += 1
                 nh = record(f_lost, w, nh, accum)

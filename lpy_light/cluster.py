@@ -261,6 +261,24 @@ def trace_chunks(digest: str, seed: int, chunks) -> list:
     return [kscene.trace(seed, first, count) for first, count in chunks]
 
 
+def worker_fingerprint() -> str:
+    """This worker's arithmetic fingerprint (``client.run(cluster.worker_fingerprint)``): workers that share it
+    give a chunk the same bits (:mod:`lpy_light.kernel.fingerprint`)."""
+    from .kernel.fingerprint import arithmetic_fingerprint
+
+    return arithmetic_fingerprint()
+
+
+def mixed_machines_note(fingerprints: dict) -> str | None:
+    """One line where the workers (address -> fingerprint) are of more than one kind of arithmetic, else None."""
+    kinds = sorted(set(fingerprints.values()))
+    if len(kinds) < 2:
+        return None
+    return ("the Dask workers are of %d kinds of machine (arithmetic fingerprints %s): this run's numbers are a "
+            "one-machine run's in their statistics, not to the last bit (docs/physics.md, 'What is reproducible')"
+            % (len(kinds), ", ".join(kinds)))
+
+
 def build_seconds() -> list:
     """(digest, seconds) of each scene build on this worker (``client.run(cluster.build_seconds)``)."""
     return list(BUILDS)
@@ -287,6 +305,7 @@ class DaskChunks:
         self.address = getattr(client, "lpy_address", None) or client.scheduler.address
         self.threads = max(1, self._threads())
         self.digest = self._plugin = None
+        self.fingerprints = {}
 
     def _threads(self) -> int:
         workers = self.client.scheduler_info(n_workers=-1)["workers"]
@@ -302,10 +321,24 @@ class DaskChunks:
         threads = self._threads()
         if not threads:
             log.warning("the Dask scheduler at %s has no workers yet: the chunks wait for them", self.address)
+        else:
+            self._check_machines()
         self.threads = max(1, threads)
         self.chunks_per_task = self.fixed_chunks_per_task or \
             max(1, min(MAX_CHUNKS_PER_TASK, n_chunks // (TASKS_PER_THREAD * self.threads)))
         return self.threads
+
+    def _check_machines(self):
+        """Ask each worker its arithmetic fingerprint; say once where they differ (the numbers then depend on
+        which worker traced which chunk, to the last bit only)."""
+        try:
+            self.fingerprints = self.client.run(worker_fingerprint)
+        except Exception as e:          # a worker that cannot answer does not stop the run
+            log.debug("workers' fingerprints not known: %s", e)
+            return
+        note = mixed_machines_note(self.fingerprints)
+        if note:
+            log.warning(note)
 
     def submit(self, seed: int, chunks):
         # the key names the computation (scene, seed, photons): the same key is the same tallies
@@ -321,4 +354,5 @@ class DaskChunks:
 
     def describe(self) -> dict:
         return {"dask": {"scheduler": self.address, "workers": self.workers, "threads": self.threads,
-                         "chunks_per_task": self.chunks_per_task, "scene": self.digest}}
+                         "chunks_per_task": self.chunks_per_task, "scene": self.digest,
+                         "fingerprints": sorted(set(self.fingerprints.values()))}}

@@ -17,7 +17,7 @@ from contextlib import contextmanager
 from pathlib import Path
 
 from .errors import InputError
-from .results import check_out_dir
+from .results import check_out_dir, machine
 
 
 def _organ_specs(items) -> dict:
@@ -193,7 +193,8 @@ def cmd_grow(args) -> int:
                "bands": model.chamber.band_labels, "plant_unit_m": model.scale * model.chamber.metres_per_unit,
                "position": list(map(float, model.position)), "scene": str(model.chamber.source),
                "seed": model.seed, "estimator": model.estimator,
-               "settings": dataclasses.asdict(model.kscene.settings), "warnings": seen.summary()}
+               "settings": dataclasses.asdict(model.kscene.settings), "warnings": seen.summary(),
+               "machine": machine()}
     if model.keeper is not None:
         summary["reuse"] = dataclasses.asdict(model.keeper.settings)
         summary["stores_built"] = model.keeper.built

@@ -268,6 +268,14 @@ def csv_text(rows, columns=None) -> str:
     return buf.getvalue()
 
 
+def machine() -> dict:
+    """Where the numbers were computed, as far as their bits depend on it: the arithmetic fingerprint, the
+    processor and the versions (:mod:`lpy_light.kernel.fingerprint`; docs/physics.md, "What is reproducible")."""
+    from .kernel.fingerprint import describe
+
+    return describe()
+
+
 def write_run(out_dir, chamber, result, norm=None, extra=None) -> dict:
     """Write every results file of a run into ``out_dir``; return the summary dict."""
     out = Path(out_dir)
@@ -284,6 +292,7 @@ def write_run(out_dir, chamber, result, norm=None, extra=None) -> dict:
         "counters": {"candidate_overflows": int(result.counters[1]), "scratch_flushes": int(result.counters[2]),
                      "lost": int(result.counters[3])},
     }
+    summary["machine"] = machine()
     sigma = sigma_summary(chamber, result)
     if sigma is not None:
         summary["relative_sigma"] = sigma

@@ -3,10 +3,19 @@
 # Where the L-Py/PlantGL bundle of this machine is at hand (../shared/lpy/install.sh, our machines and CI), also
 # set up .venv-lpy with it (it pins numpy < 2, hence a venv of its own) and run the L-Py tests there against the
 # real L-Py; elsewhere (a user's machine: L-Py comes from conda) those tests are skipped.
-set -euo pipefail
+# Both suites run whatever the first gives; each one's result is reported at the end, and the script exits
+# non-zero if either failed.
+set -uo pipefail
 cd "$(dirname "$0")/.."
-bash scripts/setup.sh
+bash scripts/setup.sh || exit $?
 .venv/bin/python -m pytest -q "$@"
+core=$?
+lpy=0
 if [ $# -eq 0 ]; then
   bash scripts/test-lpy.sh
+  lpy=$?
 fi
+verdict() { case $1 in 0) echo "passed" ;; 5) echo "no test ran (exit 5)" ;; *) echo "FAILED (exit $1)" ;; esac; }
+echo "test.sh: core suite (.venv): $(verdict $core)"
+[ $# -eq 0 ] && echo "test.sh: L-Py suite (.venv-lpy): $(verdict $lpy)"
+[ $core -eq 0 ] && [ $lpy -eq 0 ]

@@ -120,6 +120,15 @@ def test_cli_run_on_a_scheduler_address_equals_a_local_run(client, tmp_path, cap
     assert (tmp_path / "dask" / "sensors.csv").read_bytes() == (tmp_path / "local" / "sensors.csv").read_bytes()
     summary = json.loads((tmp_path / "dask" / "summary.json").read_text())
     assert summary["dask"]["scheduler"] == address and summary["photons"] == 100_000
+    # the workers run on this machine: one kind of arithmetic, this one's, and no word about mixed machines
+    local = json.loads((tmp_path / "local" / "summary.json").read_text())
+    assert summary["dask"]["fingerprints"] == [local["machine"]["fingerprint"]] and "kinds of machine" not in err
+
+
+def test_workers_of_two_kinds_of_machine_are_named():
+    assert cluster.mixed_machines_note({"tcp://a:1": "f0", "tcp://b:1": "f0"}) is None
+    note = cluster.mixed_machines_note({"tcp://a:1": "f0", "tcp://b:1": "f1", "tcp://c:1": "f0"})
+    assert "2 kinds of machine" in note and "f0, f1" in note and "\n" not in note
 
 
 def test_unreachable_scheduler_is_one_error_line(tmp_path, capsys):

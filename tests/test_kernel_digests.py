@@ -1,21 +1,32 @@
-"""The kernel's numbers, pinned bit for bit: a change meant to leave the physics alone (a refactor, a
-faster loop) must leave every tally exactly as it was.
+"""The kernel's numbers, held two ways: bit for bit where that is guaranteed, and within their own
+standard error everywhere.
 
-Each case traces a few photons with a fixed seed through a path of the kernel and digests the raw float64
-arrays it returns (sums, sums of products between bands, counters, next-event statistics; for the rose,
-each organ's numbers): sha256 of their bytes, so no float formatting is involved.  The cases cover the
-Angers chamber with each estimator (``weighted``, ``nee`` with its pilot and the control variate, image and
-zone events; ``analog``), the 12-band chamber (``nee``, and ``analog``: one path per band), a small room
-with every emitter kind (line, point, polygon, cylinder, sphere), disc and quad sensors, a solid sensor,
-a mirror and a Phong lobe, and the procedural rose of ``benchmarks/rose.py`` through
-:class:`~lpy_light.light.LightModel` (organs from meshes, next events aimed at leaves and buds).
+Each case traces a few photons with a fixed seed through a path of the kernel: the Angers chamber with each
+estimator (``weighted``, ``nee`` with its pilot and the control variate, image and zone events; ``analog``), the
+12-band chamber (``nee``, and ``analog``: one path per band), a small room with every emitter kind (line, point,
+polygon, cylinder, sphere), disc and quad sensors, a solid sensor, a mirror and a Phong lobe, and the procedural
+rose of ``benchmarks/rose.py`` through :class:`~lpy_light.light.LightModel` (organs from meshes, next events aimed
+at leaves and buds).
 
-Results do not depend on the number of threads (by design), nor on the x86-64 machine: Embree's code path
-is capped at AVX2 (``kernel.embree.DEVICE_CONFIG``), as its AVX-512 path rounds some hits differently.  What breaks this test:
-any change to the arithmetic or to the order of random numbers in the kernel, or to how the scene is
-turned into kernel arrays.  A change that is *meant* to alter the numbers updates the digests, printed by
+* **Bit for bit** (:func:`test_outputs_bitwise_as_pinned`): the sha256 of the raw float64 arrays a case returns
+  (tallies, sums of products, counters, next-event statistics; the rose's organs), as pinned for this machine's
+  arithmetic (:func:`kernel.fingerprint.arithmetic_fingerprint`: Embree's ray tests, numpy's and libm's
+  transcendental functions, the versions).  A change meant to leave the physics alone (a refactor, a faster
+  loop) must leave every bit as it was.  Asserted only on a machine whose fingerprint has pinned digests: two
+  processors whose Embree rounds a grazing ray differently part a photon's path there (``docs/physics.md``,
+  "What is reproducible"), and no digest can be promised across them.
+* **Within their error** (:func:`test_outputs_within_their_error_of_the_stored`), on every machine: every tally
+  (every organ's light for the rose) within 4 of its standard errors of the stored value
+  (``tests/data/kernel_reference.npz``, same seed), the tallies' root-mean-square z below 0.5 (same seed:
+  another machine parts a handful of paths, so z stays near 0; a change of physics moves many), and each
+  photon's deposits summing to the photons emitted (closure).
 
-    .venv/bin/python tests/test_kernel_digests.py
+A change that is *meant* to alter the numbers records both anew, on a machine whose fingerprint is pinned:
+
+    .venv/bin/python tests/test_kernel_digests.py --record
+
+(it prints the digests for ``PINNED`` and writes the stored values); on another machine ``--record`` adds that
+machine's digests under its own fingerprint.
 """
 from __future__ import annotations
 
@@ -25,6 +36,8 @@ import os
 import platform
 import subprocess
 import sys
+import tempfile
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -75,7 +88,19 @@ def _digest(arrays) -> str:
     return h.hexdigest()
 
 
-def _run(scene, estimator, photons, seed=3, picks=None, prune=True):
+@dataclass
+class Outcome:
+    """A case's digest and the numbers it is held to statistically: ``value``, ``std`` (n,) and the closure
+    (each photon's deposits summed per band, N in expectation) with its σ, (B,) or None."""
+    digest: str
+    value: np.ndarray
+    std: np.ndarray
+    closure: np.ndarray | None = None
+    closure_std: np.ndarray | None = None
+    photons: int = 0
+
+
+def _run(scene, estimator, photons, seed=3, picks=None, prune=True) -> Outcome:
     """Trace as ``lpy-light run`` does (with ``nee``: the pilot that switches off blind sources first)."""
     from lpy_light import simulate
     from lpy_light.cli import resolve_scene
@@ -88,10 +113,12 @@ def _run(scene, estimator, photons, seed=3, picks=None, prune=True):
     if estimator == "nee" and prune:
         ks.prune_next_events(threads=2)
     r = simulate.run(ks, photons, seed=seed, threads=2)
-    return _digest([r.tally, r.tally_prod, r.counters, r.nee_stats])
+    closure, closure_std = r.closure
+    return Outcome(_digest([r.tally, r.tally_prod, r.counters, r.nee_stats]), r.tally[:-1].ravel(),
+                   r.tally_std[:-1].ravel(), closure, closure_std, photons)
 
 
-def _rose(photons, stage=2, stages=4, cones=None):
+def _rose(photons, stage=2, stages=4, cones=None) -> Outcome:
     """The rose's organs' numbers.  R:FR is read as the plain ratio of the tallies (``ratios.uncorrected``),
     the formula these digests were recorded with: its bias correction (issue 45) is arithmetic on the
     kernel's tallies, not the kernel, and the digests are to pin the kernel."""
@@ -103,18 +130,20 @@ def _rose(photons, stage=2, stages=4, cones=None):
                        lamp_flux=np.linspace(1.0, 2.0, 12), targets=["Leaf", "Bud"],
                        organs={"Leaf": LEAF_MATERIAL, "Internode": LEAF_MATERIAL[0], "Bud": LEAF_MATERIAL[0]},
                        cone_rays=cones)
-    out = []
+    out, value, std = [], [], []
     for s in (stage - 1, stage):
         with ratios.uncorrected():
             step = model.run(model.organs_from_meshes(rose(s, stages)))
         for light in step.organs.values():
             out += [light.photons, light.photons_std, light.ppfd, light.ppfd_std, light.absorbed, light.absorbed_std,
                     np.array([light.par, light.par_std, light.rfr, light.rfr_std])]
-    return _digest(out)
+            value += [light.ppfd, light.absorbed]
+            std += [light.ppfd_std, light.absorbed_std]
+    return Outcome(_digest(out), np.concatenate(value), np.concatenate(std), photons=photons)
 
 
 def cases(tmp: Path) -> dict:
-    """Every case's callable (name → () → digest)."""
+    """Every case's callable (name → () → :class:`Outcome`)."""
     line = lambda: _room(tmp / "room-line", "line", "mirror")
     lamb = lambda: _room(tmp / "room-lambertian", "lambertian", "phong")
     return {
@@ -133,84 +162,167 @@ def cases(tmp: Path) -> dict:
     }
 
 
-# x86-64 (CI's kind of machine).  History: first recorded on the kernel before its records (issue 29) and
-# unchanged by them; the Angers cases then changed with physics.repeated_names = "last" (a scene change:
-# SEC2's reading of repeated identifiers) and the rose with next events by solid angle near meshes
-# (issue 24) -- both checked identical on main before and after merging the records; then the nee cases
-# with mesh targets (the room's solid sensor, the rose) with mesh targets' own next events near them; then all
-# of them with Embree's code path capped at AVX2 (``kernel.embree.DEVICE_CONFIG``): before, an AVX-512 machine
-# and an AVX2 one gave different digests for the same code (the rose's differed between this project's machines);
-# then the nee cases with mesh targets with organs' own events averaged over 2 samples, picks among organs by
-# importance over clusters and organ zone events (issue 24): Angers unchanged; "rose-cones" added with the cone rays
-# (kernel.cones, thirteenth session; a plant's default is none, so rose-nee is unchanged by them); then the two
-# rose cases with the organ zones' solid angles in one compiled loop (kernel.organ_zones.zone_measures,
-# fourteenth session): numpy's einsum and arctan2 round differently; the rose's organs differ by ≤ 2e-16
-# relative (≤ 4e-15 σ), 339 of 516 bitwise the same (3e5 photons, 5 steps); then the two rose cases with no
-# BLAS call left on the way from meshes to numbers (fifteenth session: kernel.vectors, LightResult.combination,
-# benchmarks/rose.py's rotations): before, numpy's BLAS kernel, which OpenBLAS picks by processor, changed the
-# rose's digests between an AVX-512 Intel machine (SkylakeX) and an AMD one (Haswell kernel); then the two rose
-# cases with points on closed meshes (the buds) drawn among the triangles facing the vertex (kernel.nee.facing_triangle),
-# and with them the room's nee cases (its solid sensor is a one-sided mesh: the same points, its triangles' areas
-# now from the targets' cumulative areas, which round differently); then the two rose cases with next events through
-# a mirror to organs drawn by importance seen from the vertex's image, and cone rays from it, and organ zone events
-# for the buds only, 0.25 per vertex, and (rose-cones) 0.1 events through a mirror where cone rays are on
-# (sixteenth session); then angers-12bands-nee with a next event's weight summed over the bands before it is
-# added to nee_stats, and rose-cones with a cone ray's coincident surfaces picked before asking whether the
-# surface met is a target (as a photon picks: kernel.rays.first_hit; before, a non-target triangle with a
-# coincident target ended the ray) (eighteenth session; a plant has no local rays by default, so rose-nee is
-# as before); then rose-cones with a vertex's cone rays ∝ its photon's mean weight × the cones' share of its light,
-# a quarter of that near a cluster (kernel.cones.ray_mean, nineteenth session; the kernel's other changes that
-# session -- prefetched tally rows, loops over views -- left every digest as it was); then every case with two more
-# counters (the organs' pick shares, kernel.tallies.C_PICK_SHARE: zero on sensors; the sensor cases' tallies are as
-# before, their digests without the two counters as pinned before), and the rose's with picks as many as a vertex's
-# pick share asks (kernel.nee.pick_share, twentieth session); then the two rose cases with the closed buds of
-# translucent tissue (the rose's buds are a leaf's material) given their own surface in their organ zone
-# (KernelScene._own_zones, twenty-third session: their inside light from every vertex)
+CASES = list(cases(Path(".")))
+_OUTCOMES: dict = {}
+
+
+def outcome(case: str) -> Outcome:
+    """A case traced once per process (the bitwise and the statistical tests read the same run)."""
+    if case not in _OUTCOMES:
+        with tempfile.TemporaryDirectory() as d:
+            _OUTCOMES[case] = cases(Path(d))[case]()
+    return _OUTCOMES[case]
+
+
+def fingerprint() -> str:
+    from lpy_light.kernel.fingerprint import arithmetic_fingerprint
+
+    return arithmetic_fingerprint()
+
+
+#: Digests per arithmetic fingerprint (:mod:`kernel.fingerprint`).  The kernel's history of deliberate changes
+#: to its numbers is in git (``git log -p tests/test_kernel_digests.py``); the latest: hit points computed in
+#: float64 on the kernel's own triangles rather than from Embree's float32 barycentrics, and a coplanar tie
+#: picked by rank in index order (kernel.rays.hit_point, pick_coplanar), so that Embree's processor-dependent
+#: rounding stops at which triangle a ray meets.
 PINNED = {
-    "angers-weighted": "036eb93dbdf7e4cbb16323e070de78b414723ab9c0c43d82d1087d002a894081",
-    "angers-nee": "6680107761b56e1d6a5c7ffcaf46aae7a662ac1d30b0991a8c4fa030a4c145ae",
-    "angers-analog": "20fb0f87faf0a150769d74fed3444d5c55f3165c492aa217cf2592654ce74667",
-    "angers-12bands-nee": "027916e6c30c7baa0eed16af815d8845b229d09c24b47c045e985942de34f8f1",
-    "angers-12bands-analog": "62528eab1129ba12f4a72472b3b3b6cd989fd5befa3a3807577a88a7381fe7c1",
-    "room-line-nee": "8131a63d9cd497533a5d26a1359228008b36e9240d8675b874ff7987eb80e4c5",
-    "room-line-nee-all": "4f2c47bb00d9c7da87e4b9561ec345420a57a08ba8a92a367d69006275df8de0",
-    "room-line-weighted": "78a8eb623f8896e764d6e179bbeac9a23296507a92da155db9eb19c91912f74c",
-    "room-lambertian-nee": "3c595582268478ce82586a3f83ee069e4db2c27d60762cb72ef9c6b9eaa95a4d",
-    "room-lambertian-analog": "cc89df8d5b9bd4290aa827d0fcfaab224ee1e242c05425dcd2f4942469039aff",
-    "rose-nee": "2522a14427e588283226980e6f4c2a3bddf54acb0f128a1f6db144b3641a66ff",
-    "rose-cones": "3e55b037d4ba4bda9d8920fac4461e2d89a0800b999ad14bac909a118438a2ea",
+    "856d56ee47c7b03b": {
+        "machine": "AMD EPYC (Zen 3, AVX2), Python 3.11, numpy 2.4.6, numba 0.68.1, embreex 4.4.0.post1, "
+                   "trimesh 5.2.0 (constraints.txt)",
+        "digests": {
+            "angers-weighted": "97e53072d56e8a5944948f8b671df4116c7c6a824f14314fbffadda3172b4cfe",
+            "angers-nee": "896ff0cfc9c893cc8bc8b76d02537a6bb94d68f0cdae14e8fdb37cafb5e497ad",
+            "angers-analog": "6b3e3cb7eb0f22e7d250363941840c4afc42dc22edf7bf7fe6058af24fa1aea8",
+            "angers-12bands-nee": "1b969ad0f4db22895c31fb618704ede5b087942ce4062b5f4b27f97cb4c2ad10",
+            "angers-12bands-analog": "7c4e67dfb9651e51d9dc589cf996595c87895f54b2f7f7d1832a63b47505011e",
+            "room-line-nee": "6092132b23fc3d5b8da94b5064948e827a3d0238f063da49a1a5e6e8c0f9058c",
+            "room-line-nee-all": "e60bcaaad0717683b9ae4c3c424e316971ec8bd035cf651be77cbc7b933dc50e",
+            "room-line-weighted": "78a8eb623f8896e764d6e179bbeac9a23296507a92da155db9eb19c91912f74c",
+            "room-lambertian-nee": "6f2a5d3354ab77db9e5a521a3a1a5e2112f057b10a7d7860125e435705e01ac3",
+            "room-lambertian-analog": "cc89df8d5b9bd4290aa827d0fcfaab224ee1e242c05425dcd2f4942469039aff",
+            "rose-nee": "776b4fa672a098f0077627e4de867baa1deed4052a5895089325d54411efde4d",
+            "rose-cones": "1a33bdbbc2d21064a6079fe05cde25eee1189b954e8daf4ad52a5d9d7e689de0",
+        },
+    },
 }
 
+REFERENCE = Path(__file__).parent / "data" / "kernel_reference.npz"
+Z_MAX = 4.0          # every tally within 4σ of the stored value
+Z_RMS_MAX = 0.5      # and their rms z (same seed: ~0 on a sound kernel, ~1.4 for an independent run)
 
-@pytest.mark.parametrize("case", list(cases(Path("."))))
-def test_outputs_bitwise_as_pinned(case, tmp_path):
-    assert cases(tmp_path)[case]() == PINNED.get(case), "%s: the kernel's numbers changed" % case
+
+def stored(case: str) -> dict:
+    with np.load(REFERENCE) as ref:
+        return {k.split("/", 1)[1]: ref[k] for k in ref.files if k.startswith(case + "/")}
+
+
+@pytest.mark.parametrize("case", CASES)
+def test_outputs_bitwise_as_pinned(case):
+    pinned = PINNED.get(fingerprint())
+    if pinned is None or case not in pinned["digests"]:
+        pytest.skip("no digests pinned for this machine's arithmetic (fingerprint %s): the numbers are held "
+                    "within their error by test_outputs_within_their_error_of_the_stored" % fingerprint())
+    assert outcome(case).digest == pinned["digests"][case], "%s: the kernel's numbers changed" % case
+
+
+def z_scores(new: Outcome, ref: dict) -> np.ndarray:
+    """(value - stored) / σ per tally, σ the stored run's own (the same seed: a shift of 4 of the stored
+    run's σ fails).  A tally the stored run never reached (σ 0) is held to the new run's σ; an organ that is
+    not measured (NaN: not a target) must be NaN in both."""
+    sigma = np.where(ref["std"] > 0, ref["std"], new.std)
+    delta = np.where(np.isnan(new.value) & np.isnan(ref["value"]), 0.0, new.value - ref["value"])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(sigma > 0, delta / sigma, np.where(delta == 0, 0.0, np.inf))
+
+
+@pytest.mark.parametrize("case", CASES)
+def test_outputs_within_their_error_of_the_stored(case):
+    ref = stored(case)
+    new = outcome(case)
+    assert new.value.shape == ref["value"].shape, "%s: other tallies than stored" % case
+    z = z_scores(new, ref)
+    worst = np.argsort(-np.abs(z))[:5]
+    detail = ", ".join("#%d z=%+.2f (%.6g vs %.6g)" % (i, z[i], new.value[i], ref["value"][i]) for i in worst)
+    assert np.all(np.abs(z) < Z_MAX), "%s: tallies beyond %gσ of the stored values: %s" % (case, Z_MAX, detail)
+    reached = ref["std"] > 0
+    rms = float(np.sqrt(np.mean(z[reached] ** 2)))
+    assert rms < Z_RMS_MAX, "%s: rms z %.3f over %d tallies (a shift of many): %s" % (case, rms, reached.sum(),
+                                                                                     detail)
+    if new.closure is not None:
+        # within 4σ, and the rounding of N sums (analog: every photon deposits exactly 1, σ 0)
+        slack = Z_MAX * new.closure_std + 1e-9 * new.photons
+        assert np.all(np.abs(new.closure - new.photons) <= slack), "%s: deposits %s for %d photons emitted (σ %s)" % (
+            case, new.closure, new.photons, new.closure_std)
 
 
 @pytest.mark.skipif(platform.machine().lower() not in ("x86_64", "amd64"), reason="OpenBLAS's x86-64 kernels")
 @pytest.mark.parametrize("kernel", ["Prescott", "Nehalem"])
 def test_outputs_the_same_under_another_blas_kernel(kernel):
-    """The same numbers whichever BLAS kernel numpy runs: OpenBLAS picks its kernel by processor (Haswell,
-    SkylakeX, Zen, ...), and they round a dot product differently.  The cases run again in a child process with
-    a kernel forced (``OPENBLAS_CORETYPE``: two that every x86-64-v2 processor runs, and that rounded the rose
-    differently); before the mesh path's BLAS calls were removed (``kernel.vectors``), the rose's digests
-    differed between them.  (This holds for the numpy of ``.venv``; under numpy 1.26's OpenBLAS, in the L-Py
-    venv, trimesh's own ``icosphere`` and ``cylinder``, which build the procedural rose, already differ by kernel.)"""
+    """The same numbers whichever BLAS kernel numpy runs, on any machine: OpenBLAS picks its kernel by
+    processor (Haswell, SkylakeX, Zen, ...), and they round a dot product differently.  The cases run again in
+    a child process with a kernel forced (``OPENBLAS_CORETYPE``: two that every x86-64-v2 processor runs, and
+    that rounded the rose differently) and must give this process's digests; before the mesh path's BLAS calls
+    were removed (``kernel.vectors``), the rose's differed between them.  (This holds for the numpy of
+    ``.venv``; under numpy 1.26's OpenBLAS, in the L-Py venv, trimesh's own ``icosphere`` and ``cylinder``,
+    which build the procedural rose, already differ by kernel.)"""
     env = dict(os.environ, OPENBLAS_CORETYPE=kernel)
-    out = subprocess.run([sys.executable, __file__], env=env, capture_output=True, text=True, timeout=600)
+    out = subprocess.run([sys.executable, __file__], env=env, capture_output=True, text=True, timeout=900)
     assert out.returncode == 0, out.stderr[-3000:]
-    changed = {k for k, v in json.loads(out.stdout).items() if v != PINNED.get(k)}
+    changed = {k for k, v in json.loads(out.stdout).items() if v != outcome(k).digest}
     assert not changed, "numbers that depend on the BLAS kernel: %s" % sorted(changed)
 
 
-if __name__ == "__main__":
-    import tempfile
+@pytest.mark.skipif(platform.machine().lower() not in ("x86_64", "amd64"), reason="Embree's x86-64 code paths")
+def test_another_processors_rounding_stays_within_the_bounds():
+    """What another processor does to a run, seen here: Embree's SSE4.2 code path (``LPY_LIGHT_EMBREE_ISA``)
+    rounds its ray tests otherwise than its AVX2 path, as an Intel processor's reciprocal does otherwise than an
+    AMD one's.  Its fingerprint differs (so the digests would not be asserted), the photons' paths are the same
+    (the hit points are the kernel's own), a few next events part, and the statistical test still passes by a
+    wide margin: the bound holds on machines we have not seen."""
+    picked = ["angers-analog", "angers-nee", "room-line-nee", "rose-nee"]
+    env = dict(os.environ, LPY_LIGHT_EMBREE_ISA="sse4.2")
+    out = subprocess.run([sys.executable, __file__, "--numbers"] + picked, env=env, capture_output=True, text=True,
+                         timeout=900)
+    assert out.returncode == 0, out.stderr[-3000:]
+    there = json.loads(out.stdout)
+    assert there["fingerprint"] != fingerprint()
+    for case in picked:
+        other = Outcome(there[case]["digest"], np.array(there[case]["value"], dtype=float),
+                        np.array(there[case]["std"], dtype=float))
+        z = z_scores(other, stored(case))
+        assert np.all(np.abs(z) < 1.0), "%s: max |z| %.3f on Embree's SSE4.2 path" % (case, np.abs(z).max())
+    assert there["angers-analog"]["digest"] == outcome("angers-analog").digest, \
+        "a photon's path depends on Embree's rounding: hit points are not the kernel's own"
+
+
+def record():
+    """Trace every case, write the stored values (where this machine's digests are pinned, or none are yet)
+    and print this machine's PINNED entry."""
     import time
 
-    with tempfile.TemporaryDirectory() as d:
-        out = {}
-        for name, fn in cases(Path(d)).items():
-            t = time.perf_counter()
-            out[name] = fn()
-            print("%-24s %s  %.1f s" % (name, out[name], time.perf_counter() - t), file=sys.stderr)
-        print(json.dumps(out, indent=4))
+    fp = fingerprint()
+    digests, arrays = {}, {}
+    for name in CASES:
+        t = time.perf_counter()
+        o = outcome(name)
+        digests[name] = o.digest
+        arrays[name + "/value"], arrays[name + "/std"] = o.value, o.std
+        print("%-24s %s  %.1f s" % (name, o.digest, time.perf_counter() - t), file=sys.stderr)
+    first = next(iter(PINNED), None)
+    if first is None or first == fp:
+        REFERENCE.parent.mkdir(exist_ok=True)
+        np.savez_compressed(REFERENCE, **arrays)
+        print("stored values written to %s" % REFERENCE, file=sys.stderr)
+    print(json.dumps({fp: {"digests": digests}}, indent=4))
+
+
+if __name__ == "__main__":
+    if "--record" in sys.argv:
+        record()
+    elif "--numbers" in sys.argv:          # the picked cases' numbers, for another process to compare
+        picked = sys.argv[sys.argv.index("--numbers") + 1:]
+        numbers = {c: {"digest": outcome(c).digest, "value": outcome(c).value.tolist(),
+                       "std": outcome(c).std.tolist()} for c in picked}
+        print(json.dumps(dict(numbers, fingerprint=fingerprint())))
+    else:
+        print(json.dumps({name: outcome(name).digest for name in CASES}, indent=4))
