@@ -11,7 +11,6 @@ tie returns.  Lengths in scene units; directions unit vectors.
 """
 import math
 
-
 from .embree import ARGS, CAND_COUNT, DIR, GEOM_ID, HIT_U, HIT_V, INVALID_ID, MASK, ORG, PRIM_ID, RAYHIT, TFAR, TNEAR
 from .jit import helper
 from .ptr import call_ptr3, load_f32, load_u32, store_f32, store_i64, store_u32
@@ -153,8 +152,8 @@ def pick_coplanar(tri, px, py, pz, dx, dy, dz, geo, state):
 @helper
 def first_hit(geo, scratch, ox, oy, oz, dx, dy, dz, tfar, state):
     """The first surface a ray from o (already off its surface) along unit d meets within ``tfar``:
-    ``(triangle, x, y, z)``, triangle -1 where none; the point from Embree's barycentric coordinates on the
-    triangle's own vertices (float64, :func:`hit_point`), coincident surfaces picked as a photon picks among them."""
+    ``(triangle, x, y, z)``, triangle -1 where none; the point on the triangle's own vertices (float64,
+    :func:`hit_point`), coincident surfaces picked as a photon picks among them."""
     rh = scratch + RAYHIT
     set_ray(scratch, ox, oy, oz, dx, dy, dz, tfar)
     call_ptr3(geo.intersect, geo.scene, rh, scratch + ARGS)
