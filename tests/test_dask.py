@@ -244,9 +244,8 @@ def test_sweep_on_dask_survives_a_killed_worker(client, tmp_path):
     assert cli.main(["run", "angers", "--photons", "2000000", "--seed", "5", "--threads", "1", "--quiet",
                      "--out", str(tmp_path / "direct")]) == 0
     assert _sensors(out / "seed=5") == _sensors(tmp_path / "direct")
-    # the nanny's new worker, for the module's next tests: on a loaded 2-core machine (a fresh clone's CI) its
-    # start took over 60 s once
-    client.wait_for_workers(2, timeout=240)
+    # (no wait for the nanny's new worker: no later test uses this cluster, and in a fresh clone's full suite its
+    # start sometimes did not come within 240 s -- Dask's restart, not the sweep, whose runs all finished)
 
 
 HAVE_LPY = importlib.util.find_spec("openalea") is not None and importlib.util.find_spec("openalea.lpy") is not None
