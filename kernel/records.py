@@ -68,6 +68,7 @@ Emitters = namedtuple("Emitters", [
     "kind",          # (E,) int32: kernel.emission.EMIT_* (each kind one sampling function there)
     "data",          # (E, 3, 3) float64: the element (end points and radius, a triangle, a centre and radius)
     "cdf",           # (E,) float64: cumulative share of the emitted power
+    "weight",        # (E, B) float64: a photon's weight per band as it leaves element e (1: the .rad's lamp)
 ])
 
 Sensors = namedtuple("Sensors", [

@@ -255,10 +255,11 @@ def trace_photons(scene, nee, organs, seed, first, count, tallies, stats, photon
             e = pick_element(emitters, i, count, state)
             ox, oy, oz, dx, dy, dz, enx, eny, enz, emode, oscale = emit(e, emitters, state, geo.offset_rel)
             if n_pass == 1:
-                w[:] = 1.0
+                for b in range(n_bands):
+                    w[b] = emitters.weight[e, b]
             else:                        # this path carries its bands only
                 for b in range(n_bands):
-                    w[b] = 1.0 if mat.band_pass[b] == pb else 0.0
+                    w[b] = emitters.weight[e, b] if mat.band_pass[b] == pb else 0.0
         depth = 0
         vx0, vy0, vz0 = ox, oy, oz   # the vertex the current segment starts at
         on_chamber = True            # ... and it is on the chamber or a lamp (a replay's store logs those)

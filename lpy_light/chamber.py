@@ -70,6 +70,8 @@ class Chamber:
     optical: object = None      # optical.OpticalLibrary, for organ materials, or None
     plant_position: list | None = None   # where a plant's origin goes, scene units
     calibration: tuple | None = None     # (measured csv Path, tolerance or None): units.read_measured
+    lamp_flux: np.ndarray | None = None  # (B,) µmol s-1 the lamps emit per band (a scene's lamp_flux), or None
+    overrides: dict = field(default_factory=dict)  # what the scene's [lamps.*] / [materials.*] tables changed
     inputs: list = field(default_factory=list)   # the files the scene was read from (Paths)
     source: str = ""
 

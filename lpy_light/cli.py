@@ -3,6 +3,7 @@
     lpy-light run SCENE.toml [--photons N] [--seed S] [--threads T] --out DIR
               [--calibrate MEASURED.csv] [--plot] [--reference REF]
     lpy-light grow MODEL.lpy --steps N [--photons P] --out DIR   # needs L-Py (conda)
+    lpy-light calibrate SCENE SURVEY.csv --out DIR   # the scene fitted to measured readings
     lpy-light scenes                       # list the built-in scenes
 
 SCENE may be a path or the name of a built-in scene (``angers``,
@@ -104,6 +105,7 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--reference-band", metavar="LABEL", default=None,
                    help="band compared with the reference (default 655-665 when the scene has it, else the first)")
     sub.add_parser("scenes", help="list the built-in scenes")
+    _calibrate_parser(sub)
     _grow_parser(sub)
     _sweep_parser(sub)
     return p
@@ -226,11 +228,7 @@ def _trace_and_write(args, path, chamber, kscene, measured, ref, ref_band, execu
                               stop=stop.is_set, precision=args.precision, executor=executor)
     finally:
         tracing[0] = False
-    norm = None
-    if chamber.spectrum is not None and chamber.bands is not None and len(chamber.sensors):
-        photons, std = result.sensors()
-        norm = units.from_spectrum(photons, std, chamber.sensors.area * chamber.metres_per_unit ** 2,
-                                   chamber.spectrum, chamber.bands)
+    norm = units.scene_normalisation(chamber, result)
     extra, calibration, comparison = _after_run(args, chamber, result, norm, measured, ref, ref_band)
     if ESTIMATORS[args.estimator].next_events:
         ks = kscene.settings
@@ -406,6 +404,58 @@ def _plots(args, chamber, result, norm, comparison, ref, ref_band):
     return paths
 
 
+def _calibrate_parser(sub):
+    c = sub.add_parser("calibrate", help="fit a scene to a survey of measured readings (lamp outputs and "
+                                         "positions, a diffuser's spread, walls' reflectance): write the fitted scene, "
+                                         "a report and a picture (lpy_light.calibrate)")
+    c.add_argument("scene", help="scene TOML file, or a built-in scene name")
+    c.add_argument("survey", help="csv: the scene's sensor columns (X,Y,Z,rayon_capteur,Xnorm,Ynorm,Znorm) and one "
+                                  "column per band (655-665 or ppfd_655-665), µmol m-2 s-1; optional 'row'")
+    c.add_argument("--out", required=True, help="output folder: scene.toml (the fitted scene), report.md, "
+                                                "calibration.json, sites.csv, rows.png")
+    c.add_argument("--photons", type=_count, default=2_000_000,
+                   help="photons per lamp run (default 2e6; every run uses the same seed)")
+    c.add_argument("--seed", type=int, default=1, help="random seed of every run (default 1)")
+    c.add_argument("--threads", type=int, default=None, help="threads (default: all cores)")
+    c.add_argument("--tolerance", type=float, default=None, metavar="D",
+                   help="how far a lamp may move, scene units (default: 30 mm)")
+    c.add_argument("--no-plot", action="store_true", help="no rows.png")
+    c.add_argument("--quiet", action="store_true", help="no progress lines")
+
+
+def cmd_calibrate(args) -> int:
+    """``lpy-light calibrate``: read and check everything, fit (:mod:`lpy_light.calibrate`), then write."""
+    from . import calibrate, simulate
+    from .scene import load_scene
+    from .survey import read_survey
+
+    if args.threads is not None and not 1 <= args.threads <= simulate.MAX_THREADS:
+        raise InputError("--threads must be in 1..%d" % simulate.MAX_THREADS)
+    if not 0 <= args.seed <= simulate.MAX_SEED:
+        raise InputError("--seed must be a whole number in 0..2^63-1")
+    if args.tolerance is not None and not args.tolerance > 0:
+        raise InputError("--tolerance must be > 0 (scene units)")
+    check_out_dir(args.out)
+    path = resolve_scene(args.scene)
+    chamber = load_scene(path)
+    survey = read_survey(args.survey, chamber)
+    check_outputs(args.out, chamber.inputs + [Path(args.survey)])
+    say = (lambda text: None) if args.quiet else (lambda text: print("lpy-light: " + text, file=sys.stderr, flush=True))
+    cal = calibrate.calibrate(chamber, survey, photons=args.photons, seed=args.seed, threads=args.threads,
+                              tolerance=args.tolerance, say=say)
+    base = args.scene if args.scene in builtin_scenes() and not Path(args.scene).exists() else str(path.resolve())
+    calibrate.write_outputs(args.out, cal, base, path.stem, plot=not args.no_plot)
+    if not args.quiet:
+        for b, before, after in zip(cal.bands, cal.cv_before, cal.cv_after):
+            print("lpy-light: %-8s cross-validated rms %5.1f %% -> %5.1f %%" % (b, 100 * before, 100 * after),
+                  file=sys.stderr)
+        for w in cal.warnings:
+            print("lpy-light: warning: " + w, file=sys.stderr)
+        print("lpy-light: wrote %s (the fitted scene: lpy-light run %s ...), report.md, calibration.json"
+              % (Path(args.out) / "scene.toml", Path(args.out) / "scene.toml"), file=sys.stderr)
+    return 0
+
+
 def _grow_parser(sub):
     g = sub.add_parser("grow", help="grow an L-Py model and light it at every step: a model that calls "
                                     "LightModel.intercept() in EndEach, or any model with --organs; write organs.csv "
@@ -554,6 +604,8 @@ def _command(args, passthrough) -> int:
         return cmd_grow(args)
     if args.command == "sweep":
         return cmd_sweep(args, passthrough)
+    if args.command == "calibrate":
+        return cmd_calibrate(args)
     return 1
 
 

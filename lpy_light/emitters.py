@@ -17,6 +17,11 @@ sources the area of the cylinder or sphere they stand for), so identical lamps
 get identical shares.  SEC2's ``point``/``point_light`` have no area: their light's
 value is read as a radiant intensity I, Φ = 4π · I.  Within a chunk the choice is
 stratified.
+
+A lamp's output may differ by band (``output``, set by a scene's ``[lamps.NAME]`` table, e.g. a fitted
+chamber: :mod:`lpy_light.calibrate`): element e's power in band b is ``power[e] · output[e, b]``.  Photons
+are then shared in proportion to ``power · mean_b output`` and start with the weight ``output / mean_b
+output`` in each band; without ``output`` every weight starts at 1, as before.
 """
 from __future__ import annotations
 
@@ -33,20 +38,41 @@ from .kernel.vectors import norm as vnorm
 @dataclass
 class Emitters:
     """E emitter elements: ``kind`` (E,) int32, ``data`` (E, 3, 3) float64, ``power`` (E,) float64,
-    ``name`` (E,) identifiers of the surfaces they come from."""
+    ``name`` (E,) identifiers of the surfaces they come from; ``output`` (E, B) each element's relative output
+    per band, or None (1 in every band)."""
 
     kind: np.ndarray
     data: np.ndarray
     power: np.ndarray
     name: list
+    output: np.ndarray | None = None
 
     def __len__(self):
         return len(self.kind)
 
     @property
+    def sampled_power(self) -> np.ndarray:
+        """(E,) what photons are shared by: ``power · mean_b output``."""
+        return self.power if self.output is None else self.power * self.output.mean(axis=1)
+
+    @property
     def cdf(self) -> np.ndarray:
-        c = np.cumsum(self.power)
+        c = np.cumsum(self.sampled_power)
         return c / c[-1]
+
+    def start_weight(self, n_bands: int) -> np.ndarray:
+        """(E, B) a photon's weight per band as it leaves element e: ``output / mean_b output`` (1 without)."""
+        if self.output is None:
+            return np.ones((len(self.kind), n_bands))
+        mean = self.output.mean(axis=1, keepdims=True)
+        return np.divide(self.output, mean, out=np.zeros_like(self.output), where=mean > 0)
+
+    def band_share(self) -> np.ndarray | None:
+        """(B,) Σ_e power·output[e, b] / Σ_e power·mean_b output[e]: the expected start weight of a photon in
+        each band (None without ``output``: 1 in every band)."""
+        if self.output is None:
+            return None
+        return (self.power[:, None] * self.output).sum(axis=0) / self.sampled_power.sum()
 
 
 class EmitterBuilder:

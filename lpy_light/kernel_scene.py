@@ -112,7 +112,8 @@ class KernelScene:
         self.sens = Sensors(i32(sensors.kind), f64(sensors.center), f64(sensors.normal), f64(sensors.radius),
                             f64(np.reshape(sensors.corners, (-1, 4, 3))), np.zeros(1, np.int64), np.zeros(1, np.int64))
         em = chamber.emitters
-        self.emit = Emitters(i32(em.kind), f64(np.reshape(em.data, (-1, 3, 3))), f64(em.cdf))
+        self.emit = Emitters(i32(em.kind), f64(np.reshape(em.data, (-1, 3, 3))), f64(em.cdf),
+                             f64(em.start_weight(chamber.n_bands)))
         self.n_sensors = len(sensors)
         self.n_chamber_receivers = len(chamber.receivers)
         self.n_bands = chamber.n_bands

@@ -249,6 +249,10 @@ class LightModel:
             flux = np.broadcast_to(np.asarray(lamp_flux, dtype=float), (B,)).copy()
             return flux, np.zeros(B)
         ch = self.chamber
+        if ch.lamp_flux is not None:          # a fitted chamber: the lamps' flux is known, nothing to trace
+            norm = units.from_lamp_flux(ch, n)
+            self.normalisation = norm
+            return norm.scale * n, np.zeros(B)
         if ch.spectrum is None or ch.bands is None or len(ch.sensors) == 0:
             raise InputError("the light model needs the lamps' photon flux: give lamp_flux=[µmol/s per band] or "
                              "a scene with 'spectrum', 'bands' and reference sensors", ch.source or None)

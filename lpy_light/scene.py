@@ -15,6 +15,13 @@ Scene files (TOML) name the inputs; paths are relative to the scene file::
     flip_normals = false                           # every geometry surface faces the other way; optional
     calibration = "measured.csv"                   # measured sensors -> ppfd scale per band; optional
                                                    # (or {file = "measured.csv", tolerance = 20})
+    base = "angers-12bands"                        # this scene is that one (path or built-in name) with
+                                                   # the keys given here; optional
+    lamp_flux = [812.0, ...]                       # µmol s-1 the lamps emit per band; optional
+    [lamps.lamp20Str]                              # a light source's output and position; optional
+    [materials.MurBlanc]                           # a material's reflectance, transmission split; optional
+                                                   # (the last three: lpy_light.overrides; a fitted
+                                                   # chamber from lpy-light calibrate has them)
 
     [physics]                                      # optional, SEC2's semantics by default
     one_sided = true          # a surface is seen only from its front (SEC2)
@@ -59,7 +66,10 @@ log = logging.getLogger("lpy_light")
 #: SEC2's scale_factor (file units per metre) of each unit
 SCALE_FACTOR_UNITS = {1000.0: "mm", 100.0: "cm", 10.0: "dm", 1.0: "m", 0.001: "km"}
 _SCENE_KEYS = {"geometry", "sensors", "unit", "optical", "specularities", "bands", "solid_sensors", "remove",
-               "physics", "spectrum", "calibration", "name", "plant_position", "flip_normals"}
+               "physics", "spectrum", "calibration", "name", "plant_position", "flip_normals",
+               "lamps", "materials", "lamp_flux"}
+#: keys holding paths (relative to the scene file that gives them)
+_PATH_KEYS = ("geometry", "sensors", "optical", "specularities", "spectrum", "solid_sensors")
 _PHYSICS_KEYS = {"one_sided": bool, "lamps": str, "specular": str, "max_depth": int, "offset": float,
                  "coplanar": str, "materials": str, "repeated_names": str}
 
@@ -153,7 +163,37 @@ def load_scene(path, **overrides) -> Chamber:
 
     ``overrides`` replace the file's keys (``None`` leaves a key alone), except ``physics``: a table
     merged key by key into the file's ``[physics]`` (``physics={"one_sided": False}`` changes that
-    one choice and keeps the scene's others)."""
+    one choice and keeps the scene's others).  A file with ``base`` is that scene with the file's keys
+    (:func:`read_spec`)."""
+    path = Path(path)
+    spec, folder, text = read_spec(path)
+    overrides = {k: v for k, v in overrides.items() if v is not None}
+    if isinstance(overrides.get("physics"), dict) and isinstance(spec.get("physics"), dict):
+        overrides["physics"] = {**spec["physics"], **overrides["physics"]}
+    spec.update(overrides)
+    return chamber_from_spec(spec, folder, str(path), text)
+
+
+def _merged(base: dict, child: dict) -> dict:
+    """``base``'s keys with ``child``'s: tables of tables (``physics``, ``lamps.*``, ``materials.*``) key by key."""
+    out = dict(base)
+    for k, v in child.items():
+        if k == "physics" and isinstance(v, dict) and isinstance(base.get(k), dict):
+            out[k] = {**base[k], **v}
+        elif k in ("lamps", "materials") and isinstance(v, dict) and isinstance(base.get(k), dict):
+            out[k] = {n: ({**base[k][n], **t} if isinstance(t, dict) and isinstance(base[k].get(n), dict) else t)
+                      for n, t in {**base[k], **v}.items()}
+        else:
+            out[k] = v
+    return out
+
+
+def read_spec(path, _seen=()) -> tuple:
+    """A scene file's keys, the folder its paths are relative to, and its text: ``(spec, folder, text)``.
+
+    With ``base = "other.toml"`` (relative to this file, or a built-in scene's name) the keys are the
+    base's with this file's on top; this file's own paths are made absolute, so that every path
+    still means the file it named."""
     path = Path(path)
     try:
         text = path.read_text(encoding="utf-8-sig")     # a byte-order mark, as some editors write, is dropped
@@ -175,11 +215,32 @@ def load_scene(path, **overrides) -> Chamber:
         elif "end of document" in msg:      # e.g. an unclosed array: the problem shows at the last line
             line = len(text.rstrip("\n").split("\n"))
         raise InputError("not valid TOML: %s" % msg.split(" (at")[0], path, line) from None
-    overrides = {k: v for k, v in overrides.items() if v is not None}
-    if isinstance(overrides.get("physics"), dict) and isinstance(spec.get("physics"), dict):
-        overrides["physics"] = {**spec["physics"], **overrides["physics"]}
-    spec.update(overrides)
-    return chamber_from_spec(spec, path.parent, str(path), text)
+    if "base" not in spec:
+        return spec, path.parent, text
+    base = spec.pop("base")
+    if not isinstance(base, str) or not base:
+        raise InputError("'base' must be a scene file or a built-in scene's name", path, _line_of(text, "base"))
+    base_path = path.parent / base
+    if not base_path.is_file():
+        if base in builtin_scenes():
+            base_path = builtin_scenes()[base]
+        else:
+            raise InputError("base scene not found: %s (a scene file, relative to this one, or a built-in scene: "
+                             "%s)" % (base, ", ".join(builtin_scenes())), path, _line_of(text, "base"))
+    if base_path.resolve() in _seen or len(_seen) > 8:
+        raise InputError("'base' leads back to %s: scenes based on each other" % base_path, path, _line_of(text, "base"))
+    base_spec, folder, _ = read_spec(base_path, _seen + (path.resolve(),))
+    for k in _PATH_KEYS:
+        v = spec.get(k)
+        if isinstance(v, str) and v:
+            spec[k] = str(path.parent / v)
+        elif isinstance(v, list):
+            spec[k] = [str(path.parent / x) if isinstance(x, str) and x else x for x in v]
+    if isinstance(spec.get("calibration"), str):
+        spec["calibration"] = str(path.parent / spec["calibration"])
+    elif isinstance(spec.get("calibration"), dict) and isinstance(spec["calibration"].get("file"), str):
+        spec["calibration"] = {**spec["calibration"], "file": str(path.parent / spec["calibration"]["file"])}
+    return _merged(base_spec, spec), folder, text
 
 
 def chamber_from_spec(spec: dict, base: Path, name: str = "<scene>", text: str = "") -> Chamber:
@@ -332,6 +393,17 @@ def chamber_from_spec(spec: dict, base: Path, name: str = "<scene>", text: str =
         read("spectrum", lambda s: band_photon_flux(s, bands), spectrum)    # every band covered, before tracing
     chamber.spectrum = spectrum
     chamber.optical = optical
+    from . import overrides
+    for key, apply in (("lamps", overrides.apply_lamps), ("materials", overrides.apply_materials)):
+        table = spec.get(key)
+        if table is not None:
+            if not isinstance(table, dict):
+                raise err("'%s' must be tables [%s.NAME]" % (key, key), key)
+            chamber.overrides[key] = apply(chamber, table, err)
+    if spec.get("lamp_flux") is not None:
+        if bands is None:
+            raise err("'lamp_flux' (µmol s-1 per band) needs 'bands'", "lamp_flux")
+        chamber.lamp_flux = overrides.lamp_flux(spec["lamp_flux"], len(bands), err)
     if pos is not None:
         chamber.plant_position = [float(x) for x in pos]
     cal = spec.get("calibration")

@@ -126,6 +126,35 @@ def from_spectrum(photons, photons_std, area_m2, spectrum, bands, reference=None
                          % (spectrum.path, len(ref)))
 
 
+LAMP_FLUX_ASSUMPTION = ("the scene's lamp_flux is the photon flux the lamps emit per band (µmol s-1; e.g. fitted "
+                        "to a survey by lpy-light calibrate): ppfd[s, b] = lamp_flux_b * tally[s, b] / (N * area_s)")
+
+
+def from_lamp_flux(chamber, photons: int) -> Normalisation:
+    """Scale from the scene's ``lamp_flux`` (µmol s⁻¹ per band): exact, no σ.
+
+    A photon of band b starts with the weight ``output / mean output`` of its lamp
+    (:meth:`lpy_light.emitters.Emitters.start_weight`), whose mean over the lamps is
+    ``band_share[b]``; the N photons then carry ``lamp_flux_b`` in total when each unit of weight is
+    ``lamp_flux_b / (N · band_share_b)``."""
+    share = chamber.emitters.band_share()
+    scale = np.asarray(chamber.lamp_flux, float) / photons / (1.0 if share is None else share)
+    return Normalisation(scale, np.zeros_like(scale), "lamp flux of the scene %s (µmol s-1 per band)"
+                         % chamber.source, LAMP_FLUX_ASSUMPTION)
+
+
+def scene_normalisation(chamber, result) -> Normalisation | None:
+    """The scene's own way to µmol m⁻² s⁻¹: its ``lamp_flux``, else its lamp spectrum over its sensors, else
+    None (photon counts only)."""
+    if chamber.lamp_flux is not None:
+        return from_lamp_flux(chamber, result.photons)
+    if chamber.spectrum is not None and chamber.bands is not None and len(chamber.sensors):
+        photons, std = result.sensors()
+        return from_spectrum(photons, std, chamber.sensors.area * chamber.metres_per_unit ** 2, chamber.spectrum,
+                             chamber.bands)
+    return None
+
+
 def ppfd(photons, photons_std, area_m2, norm: Normalisation):
     """Photon flux density (µmol m⁻² s⁻¹) and its σ, (S, B), from photon counts on areas (S,) m²."""
     density = photons / area_m2[:, None]
