@@ -47,6 +47,9 @@ OUTPUT_MODELS = ("band", "lamp", "lamp+tilt", "lamp×band")
 MIN_GAIN = 0.01
 #: lamp outputs outside this range of the scene's (factors, power-weighted mean 1) are reported as implausible
 OUTPUT_RANGE = (0.5, 2.0)
+#: times the lamps are traced again at the fitted parameters and the model linearised there (Gauss-Newton with
+#: the first derivatives kept: a lamp moved 2 cm is found within its σ where one linearisation falls short)
+OUTER = 2
 #: at most this many lamps are fitted one by one (each costs runs)
 MAX_LAMPS = 16
 
@@ -276,12 +279,13 @@ def _outputs(model, X, y, wavelengths):
     return shape * k
 
 
-def fit(model, params, X0, J, y, wavelengths, sites=None, iterations: int = 40) -> Fit:
+def fit(model, params, X0, J, y, wavelengths, sites=None, iterations: int = 40, at=None) -> Fit:
     """Fit ``model``'s outputs and ``params`` (their derivatives ``J`` (P, L, S, B) around ``X0`` (L, S, B)) to
     ``y`` (S, B) over ``sites`` (a mask; all by default), alternating the outputs (exact for given θ) and θ
-    (linear least squares, clipped to the bounds).  Predictions are made at every site."""
+    (linear least squares, clipped to the bounds).  ``X0`` is the light at ``at`` (the parameters' values; by
+    default those of the scene).  Predictions are made at every site."""
     sites = np.ones(len(y), bool) if sites is None else sites
-    theta = np.array([p.base for p in params], float)
+    theta = np.array([p.base for p in params] if at is None else at, float)
     base = theta.copy()
     lower = np.array([p.lower for p in params], float)
     upper = np.array([p.upper for p in params], float)
@@ -310,14 +314,14 @@ def relative_rms(predicted, y) -> np.ndarray:
     return np.sqrt(np.mean(((predicted - y) / y) ** 2, axis=0))
 
 
-def cross_validated(model, params, X0, J, y, rows, wavelengths):
+def cross_validated(model, params, X0, J, y, rows, wavelengths, at=None):
     """Leave one row of sites out at a time: ``(rms (B,), fits)``, the rms of the left-out rows' predictions
     and each fold's :class:`Fit` (for jackknife errors)."""
     predicted = np.zeros_like(y)
     fits = []
     for r in np.unique(rows):
         out = rows == r
-        f = fit(model, params, X0, J, y, wavelengths, sites=~out)
+        f = fit(model, params, X0, J, y, wavelengths, sites=~out, at=at)
         predicted[out] = f.predicted[out]
         fits.append(f)
     return relative_rms(predicted, y), fits
@@ -411,7 +415,14 @@ def calibrate(chamber, survey, photons: int = 2_000_000, seed: int = 1, threads=
     sel = [params[i] for i in idx]
     before = fit("band", [], X0, J[:0], y, wavelengths)
     after = fit(model, sel, X0, J[idx], y, wavelengths)
-    _, folds = cross_validated(model, sel, X0, J[idx], y, rows, wavelengths)
+    at, Xa = None, X0
+    for _ in range(OUTER if sel else 0):   # the lamps traced again at the fit, the model linearised there
+        at = after.theta
+        Xa = runs.densities(*_tables(sel, at))[:, :, measured] * share
+        after = fit(model, sel, Xa, J[idx], y, wavelengths, at=at)
+        say("  re-linearised at the fit (%s): %d runs so far" % (
+            ", ".join("%s %.4g" % (p.label, v) for p, v in zip(sel, after.theta)), runs.runs))
+    _, folds = cross_validated(model, sel, Xa, J[idx], y, rows, wavelengths, at=at)
     # the lamps traced again where the fit put them: the final residuals are a run's, not the linear model's
     Xf = runs.densities(*_tables(sel, after.theta))[:, :, measured] * share if sel else X0
     final_c = _outputs(model, Xf, y, wavelengths)
@@ -447,7 +458,7 @@ def calibrate(chamber, survey, photons: int = 2_000_000, seed: int = 1, threads=
         M = band_photon_flux(chamber.spectrum, chamber.bands)[measured]
         tot = X0.sum(axis=0)
         rms_spectrum = relative_rms(tot * M / tot.mean(axis=0), y)
-    after_cv, _ = cross_validated(model, sel, X0, J[idx], y, rows, wavelengths)
+    after_cv, _ = cross_validated(model, sel, Xa, J[idx], y, rows, wavelengths, at=at)
     out = Calibration(lamps, [lab for lab, m in zip(chamber.band_labels, measured) if m], survey, before, after,
                       final, steps, before_cv, after_cv, relative_rms(before.predicted, y), relative_rms(final, y),
                       rms_spectrum, table, factor, factor_sigma, flux, warnings, photons,

@@ -401,9 +401,7 @@ def chamber_from_spec(spec: dict, base: Path, name: str = "<scene>", text: str =
                 raise err("'%s' must be tables [%s.NAME]" % (key, key), key)
             chamber.overrides[key] = apply(chamber, table, err)
     if spec.get("lamp_flux") is not None:
-        if bands is None:
-            raise err("'lamp_flux' (µmol s-1 per band) needs 'bands'", "lamp_flux")
-        chamber.lamp_flux = overrides.lamp_flux(spec["lamp_flux"], len(bands), err)
+        chamber.lamp_flux = overrides.lamp_flux(spec["lamp_flux"], chamber.n_bands, err)
     if pos is not None:
         chamber.plant_position = [float(x) for x in pos]
     cal = spec.get("calibration")
