@@ -45,7 +45,8 @@ from .errors import InputError
 OUTPUT_MODELS = ("band", "lamp", "lamp+tilt", "lamp×band")
 #: a parameter group enters only if it lowers the cross-validated rms by this fraction of it
 MIN_GAIN = 0.01
-#: lamp outputs outside this range of the scene's (factors, power-weighted mean 1) are reported as implausible
+#: a lamp's output stays within this range of the lamps' common scale (factors of about their mean): more than
+#: lamps of one kind differ by age or dirt; a fit pressing on it is warned about
 OUTPUT_RANGE = (0.5, 2.0)
 #: times the lamps are traced again at the fitted parameters and the model linearised there (Gauss-Newton with
 #: the first derivatives kept: a lamp moved 2 cm is found within its σ where one linearisation falls short)
@@ -219,26 +220,18 @@ def candidate_parameters(chamber, lamps, tolerance: float) -> list:
 
 
 # --- the fit ---------------------------------------------------------------------------------------
-def _nnls(A, b):
-    """min ‖A x − b‖, x ≥ 0 (Lawson and Hanson's active set), for small A (n, k)."""
-    n = A.shape[1]
-    P = np.zeros(n, bool)
-    x = np.zeros(n)
-    w = A.T @ (b - A @ x)
-    for _ in range(3 * n + 10):
-        if P.all() or w[~P].max() <= 1e-12 * max(1.0, np.abs(w).max()):
+def _box_ls(A, b, lower, upper, sweeps: int = 2000):
+    """min ‖A x − b‖ with lower ≤ x ≤ upper, for small A (n, k): cyclic coordinate descent, exact on a convex
+    quadratic with box constraints."""
+    G, h = A.T @ A, A.T @ b
+    x = np.clip(np.linalg.lstsq(A, b, rcond=None)[0], lower, upper)
+    for _ in range(sweeps):
+        old = x.copy()
+        for i in range(len(x)):
+            if G[i, i] > 0:
+                x[i] = min(max(x[i] + (h[i] - G[i] @ x) / G[i, i], lower[i]), upper[i])
+        if np.abs(x - old).max() <= 1e-13 * (1.0 + np.abs(x).max()):
             break
-        P[np.flatnonzero(~P)[np.argmax(w[~P])]] = True
-        while True:
-            z = np.zeros(n)
-            z[P] = np.linalg.lstsq(A[:, P], b, rcond=None)[0]
-            if (z[P] > 0).all():
-                break
-            neg = P & (z <= 0)
-            x = x + np.min(x[neg] / (x[neg] - z[neg])) * (z - x)
-            P &= x > 1e-15
-        x = z
-        w = A.T @ (b - A @ x)
     return x
 
 
@@ -248,14 +241,15 @@ def _outputs(model, X, y, wavelengths):
     L, S, B = X.shape
     Wy = 1.0 / y
     c = np.zeros((L, B))
-    if model == "lamp×band":
-        for b in range(B):
-            c[:, b] = _nnls(X[:, :, b].T * Wy[:, b, None], np.ones(S))
-        return c
+    for b in range(B):                  # the scene's own outputs, one scale per band
+        t = X[:, :, b].sum(0) * Wy[:, b]
+        c[:, b] = (t @ np.ones(S)) / (t @ t)
     if model == "band":
+        return c
+    lo, hi = OUTPUT_RANGE
+    if model == "lamp×band":            # each lamp within OUTPUT_RANGE of that scale
         for b in range(B):
-            t = X[:, :, b].sum(0) * Wy[:, b]
-            c[:, b] = (t @ np.ones(S)) / (t @ t)
+            c[:, b] = _box_ls(X[:, :, b].T * Wy[:, b, None], np.ones(S), lo * c[:, b], hi * c[:, b])
         return c
     # a factor a_l (and tilt t_l) per lamp and a scale k_b per band: alternate the two linear problems
     lam = (wavelengths - wavelengths.mean()) / max(np.ptp(wavelengths), 1e-9)
@@ -268,7 +262,15 @@ def _outputs(model, X, y, wavelengths):
                       (((X[:, :, b].T @ shape[:, b]) * Wy[:, b]) ** 2).sum() for b in range(B)])
         A = np.concatenate([np.einsum("ls,q->slq", X[:, :, b] * k[b] * Wy[None, :, b], basis[:, b]).reshape(S, -1)
                             for b in range(B)])
-        g_new = np.linalg.lstsq(A, np.ones(len(A)), rcond=None)[0].reshape(L, len(basis))
+        if len(basis) == 1:              # a factor per lamp, within OUTPUT_RANGE of their mean
+            mean = g[:, 0].mean()
+            g_new = _box_ls(A, np.ones(len(A)), np.full(L, lo * mean), np.full(L, hi * mean)).reshape(L, 1)
+        else:
+            g_new = np.linalg.lstsq(A, np.ones(len(A)), rcond=None)[0].reshape(L, len(basis))
+            g_new *= len(g_new) / max(g_new[:, 0].sum(), 1e-300)
+            shape = g_new @ basis           # a factor and tilt per lamp: each band's factor kept in range
+            g_new = np.linalg.lstsq(basis.T, np.clip(shape, lo, hi).T, rcond=None)[0].T
+        g_new /= g_new[:, 0].mean()
         if np.allclose(g_new, g, rtol=1e-9, atol=1e-12):
             g = g_new
             break
@@ -448,10 +450,10 @@ def calibrate(chamber, survey, photons: int = 2_000_000, seed: int = 1, threads=
                             "survey)" % lamp)
         if model != "band" and (factor[li] < 1e-6).any():
             warnings.append("%s's output fitted to 0 in some band (at its bound)" % lamp)
-        elif model != "band" and ((factor[li] < OUTPUT_RANGE[0]) | (factor[li] > OUTPUT_RANGE[1])).any():
-            warnings.append("%s's output is %.2f-%.2f times the scene's, outside %g-%g: more than lamps of one kind "
-                            "differ; the fit may be absorbing an error of geometry (a lamp's place, a reflector)"
-                            % (lamp, factor[li].min(), factor[li].max(), *OUTPUT_RANGE))
+        elif model != "band" and ((factor[li] < 1.01 * OUTPUT_RANGE[0]) | (factor[li] > 0.99 * OUTPUT_RANGE[1])).any():
+            warnings.append("%s's output is %.2f-%.2f times the scene's, at or beyond its bounds %g-%g: more than "
+                            "lamps of one kind differ; the fit may be absorbing an error of geometry (a lamp's place, "
+                            "a reflector)" % (lamp, factor[li].min(), factor[li].max(), *OUTPUT_RANGE))
     rms_spectrum = None
     if chamber.spectrum is not None and chamber.bands is not None:
         from .units import band_photon_flux

@@ -170,6 +170,7 @@ def test_angers_synthetic_survey_gives_back_a_dimmed_and_a_moved_lamp(tmp_path):
     survey = read_survey(calibrate_survey_path(), chamber)
     survey.values = noisy
     cal = calibrate.calibrate(chamber, survey, photons=4_000_000, seed=3)
+    print(calibrate.report_text(cal, "angers-12bands, synthetic"))
     i22, i23 = cal.lamps.index("lamp22Str"), cal.lamps.index("lamp23Str")
     others = [i for i in range(4) if i not in (i22, i23)]
     p = {q["parameter"]: q for q in cal.parameters}
