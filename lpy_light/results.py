@@ -296,6 +296,8 @@ def write_run(out_dir, chamber, result, norm=None, extra=None) -> dict:
     sigma = sigma_summary(chamber, result)
     if sigma is not None:
         summary["relative_sigma"] = sigma
+    if getattr(chamber, "overrides", None):      # what the scene's [lamps.*] / [materials.*] tables changed
+        summary["scene_overrides"] = chamber.overrides
     if norm is not None:
         summary["normalisation"] = {"how": norm.how, "assumption": getattr(norm, "assumption", None),
                                     "scale": norm.scale.tolist(), "scale_std": norm.scale_std.tolist()}

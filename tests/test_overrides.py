@@ -101,3 +101,15 @@ def test_a_scene_based_on_another_keeps_the_base_paths_and_adds_its_own(tmp_path
     with pytest.raises(InputError, match="leads back"):
         load_scene(child)
     assert load_scene(base).emitters.output is None
+
+
+def test_a_light_model_on_a_fitted_chamber_takes_its_lamp_flux(tmp_path):
+    """LightModel (grow, the .lpy files) reads a fitted scene as run does: the flux is the scene's, no run."""
+    from lpy_light import LightModel
+    fitted = tmp_path / "fitted.toml"
+    fitted.write_text('base = "angers-12bands"\nlamp_flux = %s\n[lamps.lamp20Str]\noutput = 0.5\n'
+                      % [float(10 * (i + 1)) for i in range(12)])
+    model = LightModel(str(fitted), normalisation_photons=1000)
+    share = model.chamber.emitters.band_share()
+    assert np.allclose(model.flux * share, 10.0 * np.arange(1, 13)) and not model.flux_std.any()
+    assert model.normalisation.assumption == units.LAMP_FLUX_ASSUMPTION
