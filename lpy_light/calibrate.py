@@ -568,7 +568,8 @@ def report_text(cal: Calibration, scene_name: str) -> str:
               "| after / before, cross-validated | %s |" % " | ".join(
                   "%.2f" % r for r in cal.cv_after / cal.cv_before), "",
               "## What entered", "",
-              "A group enters if it lowers the mean cross-validated rms by at least %g %% of it." % (100 * MIN_GAIN),
+              "The output models in turn, then rounds over the parameter groups: each round takes the group that "
+              "lowers the mean cross-validated rms most, if by at least %g %% of it." % (100 * MIN_GAIN),
               "", "| candidate | cv rms before, % | with it, % | entered |", "|---|---|---|---|"]
     lines += ["| %s | %s | %s | %s |" % (s["candidate"], pct(s["cv_rms_before"]), pct(s["cv_rms"]),
                                          "yes" if s["entered"] else "no") for s in cal.steps]
