@@ -5,7 +5,6 @@ another moved 2 cm, plus 1 % noise, must give back both within their stated unce
 else may enter the model.  The opt-in ``slow`` test does the same in the Angers chamber."""
 from __future__ import annotations
 
-import logging
 import subprocess
 import sys
 
@@ -18,7 +17,6 @@ from lpy_light.scene import load_scene, resolve_scene
 from lpy_light.survey import read_survey
 from scenes import box, rad_polygon
 
-logging.getLogger("lpy_light").setLevel(logging.ERROR)
 
 LAMPS = {"lampA": (600.0, 600.0), "lampB": (1400.0, 700.0), "lampC": (1000.0, 1500.0)}
 
