@@ -157,7 +157,7 @@ def calibrate_survey_path():
 
 @pytest.mark.slow
 def test_angers_synthetic_survey_gives_back_a_dimmed_and_a_moved_lamp(tmp_path):
-    """The issue's check in the Angers chamber (12 bands, 240 sites; ~10 min on 2 cores)."""
+    """The issue's check in the Angers chamber (12 bands, 240 sites; 12-18 min on 2 cores)."""
     chamber_path = resolve_scene("angers-12bands")
     truth = tmp_path / "truth.toml"
     truth.write_text('base = "%s"\nsensors = "%s"\n[lamps.lamp23Str]\noutput = 0.8\n[lamps.lamp22Str]\n'
