@@ -27,7 +27,6 @@ Outputs (:func:`write_outputs`): ``scene.toml`` (the original scene plus ``[lamp
 from __future__ import annotations
 
 import dataclasses
-import math
 import sys
 import time
 from dataclasses import dataclass, field
@@ -133,8 +132,6 @@ class LampRuns:
         self.cache, self.runs, self.seconds = {}, 0, 0.0
 
     def _scene(self, lamp, lamps, materials):
-        from .scene import Chamber  # noqa: F401  (the chamber's type, for readers)
-
         ch = dataclasses.replace(self.chamber, materials=list(self.chamber.materials), overrides={})
 
         def err(msg, key=None):
@@ -653,4 +650,4 @@ def write_outputs(out, cal: Calibration, base: str, scene_name: str, plot: bool 
 
 
 __all__ = ["calibrate", "LampRuns", "Parameter", "Fit", "Calibration", "OUTPUT_MODELS", "candidate_parameters",
-           "fit", "cross_validated", "jackknife", "write_outputs", "scene_text", "summary", "math"]
+           "fit", "cross_validated", "jackknife", "write_outputs", "scene_text", "summary"]

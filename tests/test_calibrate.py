@@ -15,7 +15,7 @@ from lpy_light import calibrate, simulate
 from lpy_light.errors import InputError
 from lpy_light.scene import load_scene, resolve_scene
 from lpy_light.survey import read_survey
-from scenes import box, rad_polygon
+from scenes import box
 
 
 LAMPS = {"lampA": (600.0, 600.0), "lampB": (1400.0, 700.0), "lampC": (1000.0, 1500.0)}
