@@ -47,9 +47,8 @@ MIN_GAIN = 0.01
 #: a lamp's output stays within this range of the lamps' common scale (factors of about their mean): more than
 #: lamps of one kind differ by age or dirt; a fit pressing on it is warned about
 OUTPUT_RANGE = (0.5, 2.0)
-#: times the lamps are traced again at the fitted parameters and the model linearised there, the derivatives of
-#: the parameters that entered taken again there (Gauss-Newton: one linearisation at the scene found a lamp moved
-#: 20 mm at 14 ± 1.5 mm)
+#: times the lamps are traced again at the fitted parameters and the model linearised there (Gauss-Newton with
+#: the first derivatives kept: a lamp moved 2 cm is found within its σ where one linearisation falls short)
 OUTER = 2
 #: at most this many lamps are fitted one by one (each costs runs)
 MAX_LAMPS = 16
@@ -416,19 +415,13 @@ def calibrate(chamber, survey, photons: int = 2_000_000, seed: int = 1, threads=
     before = fit("band", [], X0, J[:0], y, wavelengths)
     after = fit(model, sel, X0, J[idx], y, wavelengths)
     at, Xa = None, X0
-    Js = J[idx].copy()
     for _ in range(OUTER if sel else 0):   # the lamps traced again at the fit, the model linearised there
         at = after.theta
         Xa = runs.densities(*_tables(sel, at))[:, :, measured] * share
-        for k, p in enumerate(sel):          # the derivatives of what entered, taken there too
-            h = p.step if p.lower <= at[k] + p.step <= p.upper else -p.step
-            moved = at.copy()
-            moved[k] += h
-            Js[k] = (runs.densities(*_tables(sel, moved))[:, :, measured] * share - Xa) / h
-        after = fit(model, sel, Xa, Js, y, wavelengths, at=at)
+        after = fit(model, sel, Xa, J[idx], y, wavelengths, at=at)
         say("  re-linearised at the fit (%s): %d runs so far" % (
             ", ".join("%s %.4g" % (p.label, v) for p, v in zip(sel, after.theta)), runs.runs))
-    _, folds = cross_validated(model, sel, Xa, Js, y, rows, wavelengths, at=at)
+    _, folds = cross_validated(model, sel, Xa, J[idx], y, rows, wavelengths, at=at)
     # the lamps traced again where the fit put them: the final residuals are a run's, not the linear model's
     Xf = runs.densities(*_tables(sel, after.theta))[:, :, measured] * share if sel else X0
     final_c = _outputs(model, Xf, y, wavelengths)
@@ -464,7 +457,7 @@ def calibrate(chamber, survey, photons: int = 2_000_000, seed: int = 1, threads=
         M = band_photon_flux(chamber.spectrum, chamber.bands)[measured]
         tot = X0.sum(axis=0)
         rms_spectrum = relative_rms(tot * M / tot.mean(axis=0), y)
-    after_cv, _ = cross_validated(model, sel, Xa, Js, y, rows, wavelengths, at=at)
+    after_cv, _ = cross_validated(model, sel, Xa, J[idx], y, rows, wavelengths, at=at)
     out = Calibration(lamps, [lab for lab, m in zip(chamber.band_labels, measured) if m], survey, before, after,
                       final, steps, before_cv, after_cv, relative_rms(before.predicted, y), relative_rms(final, y),
                       rms_spectrum, table, factor, factor_sigma, flux, warnings, photons,
