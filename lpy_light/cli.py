@@ -469,10 +469,11 @@ def _grow_parser(sub):
                         "R:FR (0.04), or on what the rules read: par=0.03 (relative), rfr=0.02 (absolute), "
                         "LO-HI=0.05 (a band's ppfd, relative), comma-separated")
     g.add_argument("--seed", type=int, default=None, help="random seed of the light model (default: the model's)")
-    g.add_argument("--estimator", choices=("nee", "reuse"), default=None,
-                   help="nee: every step traces the chamber's photons again; reuse: the chamber's light traced once "
-                        "into a store (renewed every 10 steps) and gathered at every organ each step (default: the "
-                        "model's, else nee)")
+    g.add_argument("--estimator", choices=("nee", "field", "reuse"), default=None,
+                   help="nee: every step traces the chamber's photons again; field: the light entering the plant's "
+                        "region traced once into a field (renewed every 10 steps), each step's rays stay in the "
+                        "region; reuse: the chamber's light traced once into a store and gathered at every organ "
+                        "each step (default: the model's, else nee)")
     g.add_argument("--threads", type=int, default=None, help="threads (default: all cores)")
     g.add_argument("--out", required=True, help="output folder")
     g.add_argument("--plot-every", type=_count, default=None, metavar="N",

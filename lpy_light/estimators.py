@@ -142,7 +142,7 @@ class Estimator:
     summary: str
     weighted: bool
     settings: NextEventSettings
-    stored: bool = False       # the chamber's light from a store, gathered at a plant's organs (lpy_light.reuse)
+    stored: bool = False       # the chamber's light stored once, a plant's organs lit from it (lpy_light.reuse, .field)
 
     @property
     def next_events(self) -> bool:
@@ -157,6 +157,9 @@ ESTIMATORS: dict = {e.name: e for e in (
     Estimator("analog", "SEC2's counting: one photon, one event, raw hit counts", False, NO_NEXT_EVENTS),
     Estimator("reuse", "plants only (LightModel, grow): the chamber's light traced once into a store, gathered at "
                        "every organ each step through the current plant", True, NextEventSettings(), stored=True),
+    Estimator("field", "plants only (LightModel, grow): the light entering the plant's region traced once into a "
+                       "field; each step's rays stay in the region and read it where they leave", True,
+              NextEventSettings(), stored=True),
 )}
 DEFAULT_ESTIMATOR = "nee"
 

@@ -196,9 +196,10 @@ def cmd_grow(args) -> int:
                "settings": dataclasses.asdict(model.kscene.settings), "warnings": seen.summary(),
                "machine": machine()}
     if model.keeper is not None:
-        summary["reuse"] = dataclasses.asdict(model.keeper.settings)
+        kept = getattr(model.keeper, "store", None) or getattr(model.keeper, "field", None)
+        summary[model.estimator] = dataclasses.asdict(model.keeper.settings)
         summary["stores_built"] = model.keeper.built
-        summary["store"] = None if model.keeper.store is None else model.keeper.store.describe()
+        summary["store"] = None if kept is None else kept.describe()
     if model.last_step is not None and model.last_organs:
         pictures.append(_plant_picture(out / "plant.png", model, path, model.last_step, model.last_organs))
     summary["pictures"] = [p for p in pictures if p]

@@ -44,6 +44,7 @@ from .organ_light import (NOT_REACHED, ORGAN_COLUMNS, OrganLight, StepResult, fo
                           organ_rows, shading_only)
 from .organs import TessellationCache, mesh_key, organ_from_mesh, plant_material
 from .process_state import preserved_locale
+from .field import FieldKeeper, field_settings
 from .reuse import StoreKeeper, reuse_settings
 from .scene import UNITS, load_scene, resolve_scene
 
@@ -151,9 +152,15 @@ class LightModel:
         vertex (:mod:`lpy_light.kernel.nee`).  ``"reuse"``: the chamber's light is traced once into a store with
         the plant in place and gathered at every organ each step through the current plant, ``photons`` then
         unused (:mod:`lpy_light.reuse`; every organ is a target; ``docs/performance.md`` says when to use which).
+        ``"field"``: the light entering the plant's region is traced once into a field; each step's rays stay in
+        the region and read it where they leave (:mod:`lpy_light.field`; every organ is a target).
     reuse : mapping or None
         With ``estimator="reuse"``: its settings (:class:`lpy_light.reuse.ReuseSettings`: ``store_photons``,
         ``batches``, ``samples``, ``zone_samples``, ``image_draws``, ``paths``, ``renew``).
+    field : mapping or None
+        With ``estimator="field"``: its settings (:class:`lpy_light.field.FieldSettings`: ``store_photons``,
+        ``batches``, ``cells``, ``rings``, ``sectors``, ``rays``, ``shading_rays``, ``piece_rays``, ``pieces``,
+        ``growth``, ``margin``, ``renew``).
     one_sided_organs : bool
         An ablation for comparisons, not physics (default False): organs are seen from their front only
         (the side their right-hand-rule normal points to), as engines that cull back faces see them (the
@@ -168,7 +175,7 @@ class LightModel:
                  progress=None, nee_picks: int = 2, targets=None, mirror_events: float | None = None,
                  precision=None, lamp_scale=1.0, colour_top: float | None = None,
                  one_sided_organs: bool = False, cone_rays: float | None = None, local_rays: float | None = None,
-                 reuse=None):
+                 reuse=None, field=None):
         self.chamber = scene if hasattr(scene, "triangles") else load_scene(resolve_scene(str(scene)))
         if plant_unit not in UNITS:
             raise InputError("unknown plant_unit %r (use one of %s)" % (plant_unit, ", ".join(UNITS)))
@@ -183,7 +190,7 @@ class LightModel:
         # a stored estimator traces with nee's records: the store's trace, the gather and the paths are its events
         self.kscene = simulate.KernelScene(self.chamber, estimator="nee" if estimator_named(estimator).stored
                                            else estimator, one_sided_organs=one_sided_organs)
-        self.keeper = StoreKeeper(reuse_settings(reuse), seed) if estimator_named(estimator).stored else None
+        self.keeper = _keeper(self.estimator, reuse, field, seed)
         self.kscene.configure(**_plant_settings(nee_picks=nee_picks, cone_rays=cone_rays, local_rays=local_rays))
         _plant_settings(mirror_events=mirror_events)         # checked here, used at each step (_mirror_events)
         self.mirror_events = None if mirror_events is None else float(mirror_events)
@@ -359,15 +366,15 @@ class LightModel:
         self.step += 1
         return step
 
-    def use_estimator(self, name: str, reuse=None):
-        """Light the next steps with estimator ``name`` (``nee`` or ``reuse``, both trace with nee's records;
-        ``reuse``: its settings, as the constructor's): ``lpy-light grow --estimator``."""
+    def use_estimator(self, name: str, reuse=None, field=None):
+        """Light the next steps with estimator ``name`` (``nee``, ``field`` or ``reuse``, all trace with nee's
+        records; ``reuse``, ``field``: their settings, as the constructor's): ``lpy-light grow --estimator``."""
         est = estimator_named(name)
         if self.kscene.estimator != "nee" or not (est.stored or est.name == "nee"):
-            raise InputError("a light model of estimator %s cannot switch to %s (nee and reuse switch)"
+            raise InputError("a light model of estimator %s cannot switch to %s (nee, field and reuse switch)"
                              % (self.estimator, est.name))
         self.estimator = est.name
-        self.keeper = StoreKeeper(reuse_settings(reuse), self.seed) if est.stored else None
+        self.keeper = _keeper(est.name, reuse, field, self.seed)
 
     def _reuse_step(self, organs, precision_of, read):
         """A step of the ``reuse`` estimator (:class:`lpy_light.reuse.StoreKeeper`): one gather, and with a
@@ -480,6 +487,16 @@ class LightModel:
 
 #: LightModel's arguments that are next-event settings (:class:`lpy_light.estimators.NextEventSettings`)
 PLANT_SETTINGS = {"nee_picks": "picks", "mirror_events": "images", "cone_rays": "cones", "local_rays": "local"}
+
+
+def _keeper(name, reuse, field, seed):
+    """What keeps a stored estimator's chamber between steps (:class:`~lpy_light.field.FieldKeeper`,
+    :class:`~lpy_light.reuse.StoreKeeper`), with its settings; None for ``nee``."""
+    if name == "field":
+        return FieldKeeper(field_settings(field), seed)
+    if name == "reuse":
+        return StoreKeeper(reuse_settings(reuse), seed)
+    return None
 
 
 def _plant_settings(**arguments) -> dict:

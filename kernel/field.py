@@ -1,0 +1,313 @@
+"""The light field at a plant's region, and a step's rays that read it (the ``field`` estimator's hot loops).
+
+The *region* is a box (lo (3), hi (3), scene units) around the plant.  The *field* is the light entering it
+through its six faces, binned by face, by cell on the face and by direction, per band:
+
+* face f = 2a + s crosses axis a (0, 1, 2) at lo[a] (s = 0) or hi[a] (s = 1); its inward normal is +e_a or −e_a;
+* a face is cut into ``grid[f, 0] × grid[f, 1]`` cells along the axes a1 = a + 1, a2 = a + 2 (mod 3);
+* directions arriving through it into ``rings × sectors`` bins of equal *projected* solid angle π / (rings ·
+  sectors): ring r holds sin²θ ∈ [r / rings, (r + 1) / rings) (θ from the inward normal), sector k the azimuth
+  atan2(d·e_a2, d·e_a1) ∈ [2πk / sectors, 2π(k + 1) / sectors).
+
+``field[g, bin, b]`` holds, for batch g of the store's photons, Σ w_b / A_cell over the photon segments that
+entered the region through that bin: the irradiance it brings (photons of weight per scene unit², for all the
+store's photons), so that the radiance of the bin is ``field · bins_per_cell / π`` and a cosine-weighted ray that
+reads it estimates an irradiance of ``field · bins_per_cell``.
+
+A step (:func:`cast_rays`) shoots, from each *side* of each element of the region (an organ, a piece of the
+chamber inside the box), cosine-weighted rays from points drawn on it; each ray either leaves the region (its
+bin is recorded) or meets an element's side first (that side is recorded).  What the rays read is summed by
+:func:`read_field` and the light between elements solved by :func:`solve_passes`.
+"""
+import math
+
+import numpy as np
+from numba import njit
+
+from .embree import ARGS, GEOM_ID, INVALID_ID, PRIM_ID, RAYHIT
+from .ptr import call_ptr3, load_u32
+from .rays import set_ray
+from .rng import seed_stream, uniform
+from .sampling import cosine_hemisphere, search_cdf
+
+_TFAR_MAX = 3.0e38
+#: a ray's outcome when it met a side that sends no light back (a one-sided piece from behind)
+NOTHING = -(1 << 62)
+
+
+@njit(cache=True)
+def field_bin(box, grid, face0, rings, sectors, f, px, py, pz, ix, iy, iz):
+    """The bin of the field that light arriving at the point p of face ``f`` in the (inward, unit) direction
+    i falls in: an index into the field's bins, (face0[f] + cell) · rings · sectors + direction."""
+    a = f // 2
+    a1, a2 = (a + 1) % 3, (a + 2) % 3
+    p1 = px if a1 == 0 else (py if a1 == 1 else pz)
+    p2 = px if a2 == 0 else (py if a2 == 1 else pz)
+    c1 = int((p1 - box[a1]) / (box[3 + a1] - box[a1]) * grid[f, 0])
+    c2 = int((p2 - box[a2]) / (box[3 + a2] - box[a2]) * grid[f, 1])
+    c1 = min(max(c1, 0), grid[f, 0] - 1)
+    c2 = min(max(c2, 0), grid[f, 1] - 1)
+    d0 = ix if a == 0 else (iy if a == 1 else iz)
+    d1 = ix if a1 == 0 else (iy if a1 == 1 else iz)
+    d2 = ix if a2 == 0 else (iy if a2 == 1 else iz)
+    sin2 = max(0.0, 1.0 - d0 * d0)
+    r = min(int(sin2 * rings), rings - 1)
+    phi = math.atan2(d2, d1)
+    if phi < 0.0:
+        phi += 2.0 * math.pi
+    k = min(int(phi / (2.0 * math.pi) * sectors), sectors - 1)
+    return ((face0[f] + c1 * grid[f, 1] + c2) * rings + r) * sectors + k
+
+
+@njit(cache=True)
+def cell_area(box, grid, f):
+    """The area of one cell of face ``f``, scene units²."""
+    a = f // 2
+    a1, a2 = (a + 1) % 3, (a + 2) % 3
+    return (box[3 + a1] - box[a1]) / grid[f, 0] * (box[3 + a2] - box[a2]) / grid[f, 1]
+
+
+@njit(nogil=True, cache=True)
+def bin_crossings(seg, w0, box, grid, face0, rings, sectors, bins, weights):
+    """For each stored segment (rows of ``seg``: origin (3), unit direction (3), ..., its weights from column
+    ``w0``) that enters the region from outside: its bin, into ``bins`` (n,) (−1: it starts inside the region,
+    or misses it), and its weights / the cell's area, into ``weights`` (n, B)."""
+    n_b = weights.shape[1]
+    for i in range(seg.shape[0]):
+        ox, oy, oz, dx, dy, dz = seg[i, 0], seg[i, 1], seg[i, 2], seg[i, 3], seg[i, 4], seg[i, 5]
+        lo, hi, face = -math.inf, math.inf, -1
+        miss = False
+        for a in range(3):
+            o = ox if a == 0 else (oy if a == 1 else oz)
+            d = dx if a == 0 else (dy if a == 1 else dz)
+            if d == 0.0:
+                if o < box[a] or o > box[3 + a]:
+                    miss = True
+                continue
+            s1, s2 = (box[a] - o) / d, (box[3 + a] - o) / d
+            f = 2 * a
+            if s1 > s2:
+                s1, s2 = s2, s1
+                f = 2 * a + 1
+            if s1 > lo:
+                lo, face = s1, f
+            hi = min(hi, s2)
+        bins[i] = -1
+        if miss or face < 0 or not lo > 0.0 or lo > hi:
+            continue
+        px, py, pz = ox + lo * dx, oy + lo * dy, oz + lo * dz
+        bins[i] = field_bin(box, grid, face0, rings, sectors, face, px, py, pz, dx, dy, dz)
+        inv = 1.0 / cell_area(box, grid, face)
+        for b in range(n_b):
+            weights[i, b] = seg[i, w0 + b] * inv
+
+
+@njit(cache=True)
+def add_crossings(field, batch, bins, weights):
+    """Add the crossings' weights into ``field[batch]`` (bins, B), in their order (the same sums on any number of
+    threads when the chunks are added in order)."""
+    for i in range(bins.shape[0]):
+        k = bins[i]
+        if k >= 0:
+            for b in range(weights.shape[1]):
+                field[batch, k, b] += weights[i, b]
+
+
+@njit(nogil=True, cache=True)
+def cast_rays(scene, intersect, scratch, geom_offset, verts, normal, offset_rel, tri_side, side_tri_start, side_tri, side_cdf,
+              side_rays, ray_start, first, last, seed, box, grid, face0, rings, sectors, out, ray_tri):
+    """Rays from the element sides ``first .. last − 1``: ``side_rays[s]`` from side s, written at
+    ``out[ray_start[s]:]``: ≥ 0, the triangle side (2 t + 0 front, + 1 back, t a region triangle) the ray met
+    first; < 0, −1 − the field's bin it left the region by (:data:`NOTHING`: a side that sends no light); the
+    triangle side it left from into ``ray_tri``.
+
+    Side s's points are drawn on its triangles ``side_tri[side_tri_start[s]:side_tri_start[s + 1]]`` by area
+    (``side_cdf``: their cumulative share, ending at 1), stratified (ray j in [j, j + 1) / n of the cumulative
+    area); its directions cosine-weighted about the triangle's normal, turned to the side (front: along the
+    normal).  Side s's rays use the random stream (seed, s): the same on any number of threads.  ``tri_side``
+    (T, 2): the side a ray meets on triangle t from its front (column 0: the ray against the normal) and from its
+    back (column 1); −1, not met from there (one-sided chamber pieces are skipped by Embree itself)."""
+    state = np.zeros(1, np.uint64)
+    rh = scratch + RAYHIT
+    args = scratch + ARGS
+    for s in range(first, last):
+        n = side_rays[s]
+        lo, hi = side_tri_start[s], side_tri_start[s + 1]
+        if n <= 0 or hi <= lo:
+            continue
+        sign = 1.0 if s % 2 == 0 else -1.0
+        seed_stream(state, seed, s)
+        for j in range(n):
+            u = (j + uniform(state)) / n
+            t = side_tri[search_cdf(side_cdf, lo, hi - 1, u)]
+            a = verts[t]
+            u1, u2 = uniform(state), uniform(state)
+            if u1 + u2 > 1.0:
+                u1, u2 = 1.0 - u1, 1.0 - u2
+            px = a[0, 0] + u1 * (a[1, 0] - a[0, 0]) + u2 * (a[2, 0] - a[0, 0])
+            py = a[0, 1] + u1 * (a[1, 1] - a[0, 1]) + u2 * (a[2, 1] - a[0, 1])
+            pz = a[0, 2] + u1 * (a[1, 2] - a[0, 2]) + u2 * (a[2, 2] - a[0, 2])
+            nx, ny, nz = sign * normal[t, 0], sign * normal[t, 1], sign * normal[t, 2]
+            dx, dy, dz = cosine_hemisphere(nx, ny, nz, uniform(state), uniform(state))
+            mag = 0.0
+            for v in range(3):
+                for c in range(3):
+                    mag = max(mag, abs(a[v, c]))
+            eps = offset_rel * 2.0 * mag
+            ox, oy, oz = px + eps * nx, py + eps * ny, pz + eps * nz
+            set_ray(scratch, ox, oy, oz, dx, dy, dz, _TFAR_MAX)
+            call_ptr3(intersect, scene, rh, args)
+            gid = load_u32(rh + GEOM_ID)
+            k = ray_start[s] + j
+            if gid != INVALID_ID:
+                tri = np.int64(load_u32(rh + PRIM_ID)) + geom_offset[gid]
+                back = dx * normal[tri, 0] + dy * normal[tri, 1] + dz * normal[tri, 2] > 0.0
+                out[k] = 2 * tri + (1 if back else 0) if tri_side[tri, 1 if back else 0] >= 0 else NOTHING
+                ray_tri[k] = 2 * t + (s % 2)
+                continue
+            # the region's exit: the face whose plane the ray reaches first
+            best, face = math.inf, 0
+            for ax in range(3):
+                o = ox if ax == 0 else (oy if ax == 1 else oz)
+                d = dx if ax == 0 else (dy if ax == 1 else dz)
+                if d > 0.0:
+                    tt, f = (box[3 + ax] - o) / d, 2 * ax + 1
+                elif d < 0.0:
+                    tt, f = (box[ax] - o) / d, 2 * ax
+                else:
+                    continue
+                if tt < best:
+                    best, face = tt, f
+            best = max(best, 0.0)
+            qx, qy, qz = ox + best * dx, oy + best * dy, oz + best * dz
+            out[k] = -1 - field_bin(box, grid, face0, rings, sectors, face, qx, qy, qz, -dx, -dy, -dz)
+            ray_tri[k] = 2 * t + (s % 2)
+
+
+@njit(nogil=True, cache=True)
+def read_field(out, ray_tri, field, field_total, bins_per_cell, n_ts):
+    """What the rays read, per triangle side (2 t + 0 front, + 1 back; ``n_ts`` of them) of the region: returns
+    ``rays`` (1 + S, n_ts) how many rays left each (all, then each group g: the rays j ≡ g mod S of their side,
+    ``ray_tri`` order), ``direct`` (1 + S, n_ts, B) the sums of what those that left the region read there
+    (``bins_per_cell`` × the field: all of it, then S × its batch g for group g), and the pairs (src, dst,
+    count (pairs, 1 + S)): how many of src's rays met dst (all, then per group).  A ray's group is its index mod S
+    (each side's rays start at a multiple of S: :func:`lpy_light.field.side_budget`)."""
+    S = field.shape[0]
+    n_b = field.shape[2]
+    n = out.shape[0]
+    rays = np.zeros((1 + S, n_ts))
+    direct = np.zeros((1 + S, n_ts, n_b))
+    met = np.empty(n, np.int64)
+    n_met = 0
+    for k in range(n):
+        ts = ray_tri[k]
+        g = k % S
+        rays[0, ts] += 1.0
+        rays[1 + g, ts] += 1.0
+        code = out[k]
+        if code >= 0:
+            met[n_met] = k
+            n_met += 1
+        elif code != NOTHING:
+            j = -1 - code
+            for b in range(n_b):
+                direct[0, ts, b] += bins_per_cell * field_total[j, b]
+                direct[1 + g, ts, b] += bins_per_cell * S * field[g, j, b]
+    keys = np.empty(n_met, np.int64)
+    for i in range(n_met):
+        k = met[i]
+        keys[i] = (ray_tri[k] * n_ts + out[k]) * S + k % S
+    keys = np.sort(keys)
+    src = np.empty(n_met, np.int64)
+    dst = np.empty(n_met, np.int64)
+    count = np.zeros((n_met, 1 + S))
+    n_pairs = 0
+    i = 0
+    while i < n_met:
+        pair = keys[i] // S
+        src[n_pairs], dst[n_pairs] = pair // n_ts, pair % n_ts
+        while i < n_met and keys[i] // S == pair:
+            count[n_pairs, 0] += 1.0
+            count[n_pairs, 1 + keys[i] % S] += 1.0
+            i += 1
+        n_pairs += 1
+    return rays, direct, src[:n_pairs], dst[:n_pairs], count[:n_pairs]
+
+
+@njit(nogil=True, cache=True)
+def solve_passes(rays, direct, src, dst, count, ts_side, n_sides, reflect, transmit, tol, max_passes):
+    """The irradiance of every element side, (sides, B): what its rays read of the field (``direct``, sums per
+    triangle side, ``rays`` their counts: one column of :func:`read_field`'s) plus the light the triangles send
+    each other, passes until the largest change is below ``tol`` × the largest irradiance (or ``max_passes``);
+    returns (E of the sides, passes).
+
+    A triangle side's irradiance is the mean of what its own rays read (the side's mean where it has none); its
+    outgoing radiance (E_s · reflect_s + E_s' · transmit_s') / π (s' the other side of the triangle; ``reflect``,
+    ``transmit`` (sides, B) by element side, ``ts_side`` (triangle sides,) each one's element side, −1: none): a
+    ray that met it reads that.  An element side's irradiance is the mean over its rays."""
+    n_ts = ts_side.shape[0]
+    n_b = direct.shape[1]
+    side_rays = np.zeros(n_sides)
+    base = np.zeros((n_sides, n_b))
+    for t in range(n_ts):
+        s = ts_side[t]
+        if s >= 0:
+            side_rays[s] += rays[t]
+            for b in range(n_b):
+                base[s, b] += direct[t, b]
+    E_side = np.zeros((n_sides, n_b))
+    for s in range(n_sides):
+        if side_rays[s] > 0:
+            for b in range(n_b):
+                E_side[s, b] = base[s, b] / side_rays[s]
+    E = np.zeros((n_ts, n_b))
+    top = 0.0
+    for t in range(n_ts):
+        s = ts_side[t]
+        if s < 0:
+            continue
+        for b in range(n_b):
+            E[t, b] = direct[t, b] / rays[t] if rays[t] > 0 else E_side[s, b]
+            top = max(top, E[t, b])
+    out = np.zeros((n_ts, n_b))
+    acc = np.empty((n_ts, n_b))
+    passes = 0
+    for it in range(max_passes):
+        passes = it + 1
+        for t in range(n_ts):
+            s, o = ts_side[t], ts_side[t ^ 1]
+            for b in range(n_b):
+                v = 0.0
+                if s >= 0:
+                    v = E[t, b] * reflect[s, b]
+                if o >= 0:
+                    v += E[t ^ 1, b] * transmit[o, b]
+                out[t, b] = v
+        acc[:, :] = direct
+        for p in range(src.shape[0]):
+            c = count[p]
+            if c > 0.0:
+                for b in range(n_b):
+                    acc[src[p], b] += c * out[dst[p], b]
+        side_sum = np.zeros((n_sides, n_b))
+        for t in range(n_ts):
+            s = ts_side[t]
+            if s >= 0:
+                for b in range(n_b):
+                    side_sum[s, b] += acc[t, b]
+        for s in range(n_sides):
+            if side_rays[s] > 0:
+                for b in range(n_b):
+                    E_side[s, b] = side_sum[s, b] / side_rays[s]
+        change = 0.0
+        for t in range(n_ts):
+            s = ts_side[t]
+            if s < 0:
+                continue
+            for b in range(n_b):
+                v = acc[t, b] / rays[t] if rays[t] > 0 else E_side[s, b]
+                change = max(change, abs(v - E[t, b]))
+                E[t, b] = v
+        if change <= tol * top:
+            break
+    return E_side, passes

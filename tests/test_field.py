@@ -1,0 +1,148 @@
+"""The ``field`` estimator (:mod:`lpy_light.field`): the light entering the plant's region stored once, each step's
+rays kept inside the region.
+
+The scene (as ``test_reuse``'s): a room whose ceiling light comes through a diffusing sheet, one wall a perfect
+mirror (its light reaches the region through the field), a bud in a pocket under a thin translucent leaf (most of
+its light is what the leaf transmits and scatters: the passes between organs), and 24 more buds."""
+import math
+
+import numpy as np
+import pytest
+import trimesh
+
+from lpy_light.errors import InputError
+from lpy_light.field import FieldSettings, clip_polygon, face_grid, field_step
+from lpy_light.kernel.field import field_bin
+from lpy_light.light import LightModel
+from scenes import write_scene
+from test_reuse import GREEN, ROOM, THIN, _plant
+
+SMALL = FieldSettings(store_photons=400_000, batches=8, rays=512, shading_rays=64)
+
+
+@pytest.fixture(scope="module")
+def room(tmp_path_factory):
+    return write_scene(tmp_path_factory.mktemp("field"), ROOM)
+
+
+def _model(scene, estimator, photons=400_000, seed=1, field=SMALL):
+    return LightModel(scene, organs={"Bud": GREEN, "Leaf": THIN}, lamp_flux=100.0, plant_unit="mm",
+                      position=(500, 500, 0), photons=photons, estimator=estimator, seed=seed, threads=2,
+                      field=field if estimator == "field" else None)
+
+
+def _light(model, organs):
+    """Each organ's ppfd in the first band and its σ, (n,) each, in the organs' order."""
+    lights = model.intercept(organs)
+    keys = sorted(lights)
+    return np.array([lights[k].ppfd[0] for k in keys]), np.array([lights[k].ppfd_std[0] for k in keys])
+
+
+@pytest.fixture(scope="module")
+def full(room):
+    """The full kernel's light of the plant, 1.6e6 photons."""
+    return _light(_model(room, "nee", 1_600_000, seed=3), _plant())
+
+
+def test_the_field_agrees_with_the_full_kernel_organ_by_organ(room, full):
+    """The same plant lit by the full kernel and from a field traced with it in place: every organ's light agrees
+    (|z| < 4.5), the whole plant's too (|z| < 4), and the z-scores spread as σ says (standard deviation 0.5-1.6:
+    the field's σ, its store's error included, is honest)."""
+    model = _model(room, "field", seed=5)
+    light, sigma = _light(model, _plant())
+    assert model.keeper.built == 1
+    z = (light - full[0]) / np.hypot(sigma, full[1])
+    assert np.all(np.abs(z) < 4.5), z
+    assert 0.5 < np.std(z) < 1.6, np.std(z)
+    plant_z = (light.sum() - full[0].sum()) / math.hypot(np.sqrt(np.sum(sigma ** 2)), np.sqrt(np.sum(full[1] ** 2)))
+    assert abs(plant_z) < 4, plant_z
+
+
+def test_without_the_passes_between_organs_the_pocket_bud_loses_its_light(room, full):
+    """The control: the same field read with one pass (no light between organs) leaves the bud under the leaf far
+    below the full kernel (z < -8): the passes are what light it."""
+    model = _model(room, "field", seed=5)
+    organs = model.organs_from_meshes(_plant())
+    model.run(organs)                                    # the field, traced once
+    result = field_step(model.kscene, model.keeper.field, SMALL, seed=5, threads=2, max_passes=1)
+    from lpy_light.organ_light import organ_lights
+    lights = organ_lights(model.kscene, result, organs, model.flux, model.flux_std, model.chamber)
+    pocket = lights[1]
+    z = (pocket.ppfd[0] - full[0][0]) / math.hypot(pocket.ppfd_std[0], full[1][0])
+    assert z < -8, z
+
+
+def test_a_field_is_never_used_stale(room):
+    """A new field when a lamp's output or a material changes, when the plant leaves the region, and after
+    ``renew`` steps; the same one otherwise (``StepResult.extra['store']`` names it)."""
+    settings = FieldSettings(store_photons=20_000, batches=4, rays=8, shading_rays=4, piece_rays=4, renew=3)
+    organs = _plant()
+    model = _model(room, "field", field=settings)
+
+    def steps(n, plant=organs):
+        return [model.run(model.organs_from_meshes(plant)).extra["store"] for _ in range(n)]
+
+    first = steps(2)
+    assert first[0]["field"] == first[1]["field"] and model.keeper.built == 1 and first[0]["why"] == "first step"
+    model.flux = model.flux * 2.0
+    moved = steps(1)[0]
+    assert moved["field"] != first[0]["field"] and "lamps" in moved["why"], moved
+    grey = next(m for m in model.kscene.materials if m.name == "grey")
+    grey.events[0] *= 0.9
+    grey.events[4] = 1.0 - grey.events[:4].sum(axis=0)
+    changed = steps(1)[0]
+    assert changed["field"] != moved["field"] and model.keeper.built == 3, changed
+    after = steps(3)
+    assert [s["field"] for s in after[:2]] == [changed["field"]] * 2 and after[2]["why"] == "renewed after 3 steps"
+    far = steps(1, _plant(lift=400.0))[0]
+    assert far["why"] == "the plant left the field's region", far
+
+
+def test_a_field_step_is_the_same_on_any_number_of_threads(room):
+    settings = FieldSettings(store_photons=40_000, batches=4, rays=16, shading_rays=8, piece_rays=8)
+    out = []
+    for threads in (1, 3):
+        model = _model(room, "field", field=settings)
+        model.threads = threads
+        out.append(_light(model, _plant()))
+    assert np.array_equal(out[0][0], out[1][0]) and np.array_equal(out[0][1], out[1][1])
+
+
+def test_field_settings_refuse_what_they_cannot_do(room):
+    with pytest.raises(InputError, match="batches"):
+        FieldSettings(batches=2)
+    with pytest.raises(InputError, match="unknown field setting"):
+        _model(room, "field", field={"photons": 10})
+
+
+def test_the_bins_are_of_equal_projected_solid_angle_and_tile_the_faces():
+    """Directions drawn cosine-weighted through a face fill its direction bins equally (χ²), and points drawn over
+    the faces fill their cells in proportion to area; a point and direction fall in one bin only."""
+    box = np.array([0.0, 0.0, 0.0, 2.0, 1.0, 0.5])
+    grid, face0 = face_grid(box, 4)
+    rings, sectors = 4, 8
+    rng = np.random.default_rng(1)
+    n = 40_000
+    counts = np.zeros(rings * sectors)
+    for _ in range(n):
+        u1, u2 = rng.random(2)
+        d = np.array([math.sqrt(1 - u1), math.sqrt(u1) * math.cos(2 * math.pi * u2), math.sqrt(u1) * math.sin(2 * math.pi * u2)])
+        k = field_bin(box, grid, face0, rings, sectors, 0, 0.0, 0.3, 0.2, d[0], d[1], d[2])
+        assert k // (rings * sectors) == face0[0] + 0 * grid[0, 1] + 0         # y 0.3 of 1 in 2, z 0.2 of 0.5 in 1
+        counts[k % (rings * sectors)] += 1
+    expected = n / len(counts)
+    chi2 = np.sum((counts - expected) ** 2 / expected)
+    assert chi2 < len(counts) + 4 * math.sqrt(2 * len(counts)), chi2
+    assert grid.tolist() == [[2, 1], [2, 1], [1, 4], [1, 4], [4, 2], [4, 2]]
+    assert face0.tolist() == [0, 2, 4, 8, 12, 20]
+    # a point in the upper half of face 0's y-range falls in its second cell
+    k = field_bin(box, grid, face0, rings, sectors, 0, 0.0, 0.7, 0.2, 1.0, 0.0, 0.0)
+    assert k // (rings * sectors) == 1
+
+
+def test_a_triangle_clipped_to_a_box_keeps_the_part_inside():
+    tri = np.array([[-1.0, -1.0, 0.5], [3.0, -1.0, 0.5], [-1.0, 3.0, 0.5]])
+    poly = clip_polygon(tri, np.zeros(3), np.ones(3))
+    assert np.allclose(poly.min(axis=0), [0, 0, 0.5]) and np.allclose(poly.max(axis=0), [1, 1, 0.5])
+    area = 0.5 * abs(sum(np.cross(poly[i], poly[(i + 1) % len(poly)])[2] for i in range(len(poly))))
+    assert area == pytest.approx(1.0)
