@@ -162,9 +162,15 @@ def spherical_triangle(vx, vy, vz, t0, t1, t2, u1, u2):
     cx, cy, cz = _unit(t2[0] - vx, t2[1] - vy, t2[2] - vz)
     # interior angle at a, from the normals of the great circles ab and ac
     n1x, n1y, n1z = _cross(ax, ay, az, bx, by, bz)
-    n1x, n1y, n1z = _unit(n1x, n1y, n1z)
     n2x, n2y, n2z = _cross(ax, ay, az, cx, cy, cz)
-    n2x, n2y, n2z = _unit(n2x, n2y, n2z)
+    l1 = math.sqrt(n1x * n1x + n1y * n1y + n1z * n1z)
+    l2 = math.sqrt(n2x * n2x + n2y * n2y + n2z * n2z)
+    if not (l1 > 0.0 and l2 > 0.0):
+        # v on the line of an edge from t0 (a point of the triangle's plane, e.g. a hit point clamped onto a shared
+        # edge): the triangle is seen edge-on, though Van Oosterom's atan2(0, -0.0...) may have said 2π
+        return 0.0, 0.0, 1.0, 0.0
+    n1x, n1y, n1z = n1x / l1, n1y / l1, n1z / l1
+    n2x, n2y, n2z = n2x / l2, n2y / l2, n2z / l2
     cos_alpha = min(1.0, max(-1.0, n1x * n2x + n1y * n2y + n1z * n2z))
     alpha = math.acos(cos_alpha)
     sin_alpha = math.sin(alpha)

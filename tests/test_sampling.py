@@ -145,3 +145,18 @@ def test_spherical_triangle_is_uniform_in_solid_angle(v, tri):
     expected = n * sub_omega / omega
     chi2 = ((counts - expected) ** 2 / expected).sum()
     assert chi2 < 45.0, (chi2, counts, expected)          # 15 dof: p = 1e-4 at 42.6
+
+
+def test_a_point_on_a_triangles_edge_sees_it_edge_on_not_a_division_by_zero():
+    """A hit point clamped onto the edge t0-t2 of a bud's triangle (an edge parallel to the x axis: the
+    icosphere only translated), next events to that same triangle: Van Oosterom's formula may call its solid
+    angle 2π (a rounding-level negative denominator), and Arvo's sampling then crossed two antiparallel
+    directions, a zero-length normal: a ZeroDivisionError that ended a 4e6-photon rose run.  Now the triangle is
+    seen edge-on: Ω = 0, no deposit (no light from a point reaches the triangle it lies on)."""
+    from lpy_light.kernel.sampling import spherical_triangle
+    t0 = np.array([999.9524125435388, 919.9743900521419, 1163.2574993194928])
+    t1 = np.array([999.3343785547889, 920.5409618166535, 1163.958800936197])
+    t2 = np.array([998.7163445660391, 919.9743900521419, 1163.2574993194928])
+    for x in np.linspace(998.72, 999.95, 2001):         # ~40 % of these raised before
+        dx, dy, dz, omega = spherical_triangle(x, t0[1], t0[2], t0, t1, t2, 0.3, 0.7)
+        assert omega == 0.0, (x, omega)
