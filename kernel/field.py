@@ -113,23 +113,51 @@ def add_crossings(field, batch, bins, weights):
                 field[batch, k, b] += weights[i, b]
 
 
+@njit(cache=True)
+def _plane_t(a, ox, oy, oz, dx, dy, dz):
+    """The distance along the ray o + t·d to the plane of triangle ``a`` (3, 3), in float64 (inf if parallel)."""
+    e1x, e1y, e1z = a[1, 0] - a[0, 0], a[1, 1] - a[0, 1], a[1, 2] - a[0, 2]
+    e2x, e2y, e2z = a[2, 0] - a[0, 0], a[2, 1] - a[0, 1], a[2, 2] - a[0, 2]
+    nx, ny, nz = e1y * e2z - e1z * e2y, e1z * e2x - e1x * e2z, e1x * e2y - e1y * e2x
+    den = nx * dx + ny * dy + nz * dz
+    if den == 0.0:
+        return math.inf
+    return (nx * (a[0, 0] - ox) + ny * (a[0, 1] - oy) + nz * (a[0, 2] - oz)) / den
+
+
+@njit(cache=True)
+def _offset(a, offset_rel):
+    mag = 0.0
+    for v in range(3):
+        for c in range(3):
+            mag = max(mag, abs(a[v, c]))
+    return offset_rel * 2.0 * mag
+
+
 @njit(nogil=True, cache=True)
-def cast_rays(scene, intersect, scratch, geom_offset, verts, normal, offset_rel, tri_side, side_tri_start, side_tri, side_cdf,
-              side_rays, ray_start, first, last, seed, box, grid, face0, rings, sectors, out, ray_tri):
+def cast_rays(scene, intersect, scratch, geom_offset, verts, normal, offset_rel, tri_side, side_tri_start, side_tri,
+              side_cdf, side_rays, ray_start, first, last, seed, box, grid, face0, rings, sectors, reflect, transmit,
+              bounces, out, ray_tri, through):
     """Rays from the element sides ``first .. last − 1``: ``side_rays[s]`` from side s, written at
-    ``out[ray_start[s]:]``: ≥ 0, the triangle side (2 t + 0 front, + 1 back, t a region triangle) the ray met
-    first; < 0, −1 − the field's bin it left the region by (:data:`NOTHING`: a side that sends no light); the
-    triangle side it left from into ``ray_tri``.
+    ``out[ray_start[s]:]``: ≥ 0, the triangle side (2 t + 0 front, + 1 back, t a region triangle) where the ray's
+    path ends on a surface, whose outgoing light it reads; < 0, −1 − the field's bin it left the region by
+    (:data:`NOTHING`: it reads nothing); the triangle side it left from into ``ray_tri``, and its path's
+    throughput per band into ``through`` (n, B).
 
     Side s's points are drawn on its triangles ``side_tri[side_tri_start[s]:side_tri_start[s + 1]]`` by area
     (``side_cdf``: their cumulative share, ending at 1), stratified (ray j in [j, j + 1) / n of the cumulative
     area); its directions cosine-weighted about the triangle's normal, turned to the side (front: along the
-    normal).  Side s's rays use the random stream (seed, s): the same on any number of threads.  ``tri_side``
-    (T, 2): the side a ray meets on triangle t from its front (column 0: the ray against the normal) and from its
-    back (column 1); −1, not met from there (one-sided chamber pieces are skipped by Embree itself)."""
+    normal).  Where a ray meets a surface, its path goes on ``bounces`` times (reflected or transmitted, cosine-
+    weighted, drawn by the band-mean shares of ``reflect`` and ``transmit`` (element sides, B), the throughput
+    carrying each band's share over that probability) before it reads the surface's outgoing light: the light
+    near the point it met, not the mean of that triangle, is what a surface inside another (a leaf through a bud)
+    sends.  Side s's rays use the random stream (seed, s): the same on any number of threads.  ``tri_side``
+    (T, 2): the element side a ray meets on triangle t from its front (column 0: the ray against the normal) and
+    from its back (column 1); −1, not met from there (one-sided chamber pieces are skipped by Embree itself)."""
     state = np.zeros(1, np.uint64)
     rh = scratch + RAYHIT
     args = scratch + ARGS
+    n_b = reflect.shape[1]
     for s in range(first, last):
         n = side_rays[s]
         lo, hi = side_tri_start[s], side_tri_start[s + 1]
@@ -138,8 +166,10 @@ def cast_rays(scene, intersect, scratch, geom_offset, verts, normal, offset_rel,
         sign = 1.0 if s % 2 == 0 else -1.0
         seed_stream(state, seed, s)
         for j in range(n):
+            k = ray_start[s] + j
             u = (j + uniform(state)) / n
             t = side_tri[search_cdf(side_cdf, lo, hi - 1, u)]
+            ray_tri[k] = 2 * t + (s % 2)
             a = verts[t]
             u1, u2 = uniform(state), uniform(state)
             if u1 + u2 > 1.0:
@@ -149,48 +179,77 @@ def cast_rays(scene, intersect, scratch, geom_offset, verts, normal, offset_rel,
             pz = a[0, 2] + u1 * (a[1, 2] - a[0, 2]) + u2 * (a[2, 2] - a[0, 2])
             nx, ny, nz = sign * normal[t, 0], sign * normal[t, 1], sign * normal[t, 2]
             dx, dy, dz = cosine_hemisphere(nx, ny, nz, uniform(state), uniform(state))
-            mag = 0.0
-            for v in range(3):
-                for c in range(3):
-                    mag = max(mag, abs(a[v, c]))
-            eps = offset_rel * 2.0 * mag
+            eps = _offset(a, offset_rel)
             ox, oy, oz = px + eps * nx, py + eps * ny, pz + eps * nz
-            set_ray(scratch, ox, oy, oz, dx, dy, dz, _TFAR_MAX)
-            call_ptr3(intersect, scene, rh, args)
-            gid = load_u32(rh + GEOM_ID)
-            k = ray_start[s] + j
-            if gid != INVALID_ID:
+            for b in range(n_b):
+                through[k, b] = 1.0
+            code = NOTHING
+            for bounce in range(bounces + 1):
+                set_ray(scratch, ox, oy, oz, dx, dy, dz, _TFAR_MAX)
+                call_ptr3(intersect, scene, rh, args)
+                gid = load_u32(rh + GEOM_ID)
+                if gid == INVALID_ID:
+                    # the region's exit: the face whose plane the ray reaches first
+                    best, face = math.inf, 0
+                    for ax in range(3):
+                        o = ox if ax == 0 else (oy if ax == 1 else oz)
+                        d = dx if ax == 0 else (dy if ax == 1 else dz)
+                        if d > 0.0:
+                            tt, f = (box[3 + ax] - o) / d, 2 * ax + 1
+                        elif d < 0.0:
+                            tt, f = (box[ax] - o) / d, 2 * ax
+                        else:
+                            continue
+                        if tt < best:
+                            best, face = tt, f
+                    best = max(best, 0.0)
+                    qx, qy, qz = ox + best * dx, oy + best * dy, oz + best * dz
+                    code = -1 - field_bin(box, grid, face0, rings, sectors, face, qx, qy, qz, -dx, -dy, -dz)
+                    break
                 tri = np.int64(load_u32(rh + PRIM_ID)) + geom_offset[gid]
-                back = dx * normal[tri, 0] + dy * normal[tri, 1] + dz * normal[tri, 2] > 0.0
-                out[k] = 2 * tri + (1 if back else 0) if tri_side[tri, 1 if back else 0] >= 0 else NOTHING
-                ray_tri[k] = 2 * t + (s % 2)
-                continue
-            # the region's exit: the face whose plane the ray reaches first
-            best, face = math.inf, 0
-            for ax in range(3):
-                o = ox if ax == 0 else (oy if ax == 1 else oz)
-                d = dx if ax == 0 else (dy if ax == 1 else dz)
-                if d > 0.0:
-                    tt, f = (box[3 + ax] - o) / d, 2 * ax + 1
-                elif d < 0.0:
-                    tt, f = (box[ax] - o) / d, 2 * ax
+                hnx, hny, hnz = normal[tri, 0], normal[tri, 1], normal[tri, 2]
+                back = dx * hnx + dy * hny + dz * hnz > 0.0
+                es = tri_side[tri, 1 if back else 0]
+                if es < 0:
+                    break
+                if bounce == bounces:
+                    code = 2 * tri + (1 if back else 0)
+                    break
+                # the path goes on from the point met: reflected to the side it came from, or through
+                r_mean, t_mean = 0.0, 0.0
+                for b in range(n_b):
+                    r_mean += reflect[es, b]
+                    t_mean += transmit[es, b]
+                if not r_mean + t_mean > 0.0:
+                    break
+                tt = _plane_t(verts[tri], ox, oy, oz, dx, dy, dz)
+                if not math.isfinite(tt):
+                    break
+                hx, hy, hz = ox + tt * dx, oy + tt * dy, oz + tt * dz
+                p_r = r_mean / (r_mean + t_mean)
+                side = -1.0 if back else 1.0          # the hit side's normal: towards where the ray came from
+                if uniform(state) < p_r:
+                    for b in range(n_b):
+                        through[k, b] *= reflect[es, b] / p_r
                 else:
-                    continue
-                if tt < best:
-                    best, face = tt, f
-            best = max(best, 0.0)
-            qx, qy, qz = ox + best * dx, oy + best * dy, oz + best * dz
-            out[k] = -1 - field_bin(box, grid, face0, rings, sectors, face, qx, qy, qz, -dx, -dy, -dz)
-            ray_tri[k] = 2 * t + (s % 2)
+                    side = -side
+                    for b in range(n_b):
+                        through[k, b] *= transmit[es, b] / (1.0 - p_r)
+                mx, my, mz = side * hnx, side * hny, side * hnz
+                dx, dy, dz = cosine_hemisphere(mx, my, mz, uniform(state), uniform(state))
+                eps = _offset(verts[tri], offset_rel)
+                ox, oy, oz = hx + eps * mx, hy + eps * my, hz + eps * mz
+            out[k] = code
 
 
 @njit(nogil=True, cache=True)
-def read_field(out, ray_tri, field, field_total, bins_per_cell, n_ts):
+def read_field(out, ray_tri, through, field, field_total, bins_per_cell, n_ts):
     """What the rays read, per triangle side (2 t + 0 front, + 1 back; ``n_ts`` of them) of the region: returns
     ``rays`` (1 + S, n_ts) how many rays left each (all, then each group g: the rays j ≡ g mod S of their side,
     ``ray_tri`` order), ``direct`` (1 + S, n_ts, B) the sums of what those that left the region read there
-    (``bins_per_cell`` × the field: all of it, then S × its batch g for group g), and the pairs (src, dst,
-    count (pairs, 1 + S)): how many of src's rays met dst (all, then per group).  A ray's group is its index mod S
+    (``bins_per_cell`` × the field × the ray's throughput: all of it, then S × its batch g for group g), and the
+    links: for each ray whose path ended on a surface, its triangle side ``src``, the one it ended on ``dst`` and
+    its throughput ``weight`` (links, B), by group: group g's links are ``start[g]:start[g + 1]``.  A ray's group is its index mod S
     (each side's rays start at a multiple of S: :func:`lpy_light.field.side_budget`)."""
     S = field.shape[0]
     n_b = field.shape[2]
@@ -211,35 +270,36 @@ def read_field(out, ray_tri, field, field_total, bins_per_cell, n_ts):
         elif code != NOTHING:
             j = -1 - code
             for b in range(n_b):
-                direct[0, ts, b] += bins_per_cell * field_total[j, b]
-                direct[1 + g, ts, b] += bins_per_cell * S * field[g, j, b]
-    keys = np.empty(n_met, np.int64)
+                direct[0, ts, b] += bins_per_cell * through[k, b] * field_total[j, b]
+                direct[1 + g, ts, b] += bins_per_cell * S * through[k, b] * field[g, j, b]
+    # the links by group (a counting sort): group g's are start[g]:start[g + 1]
+    start = np.zeros(S + 1, np.int64)
     for i in range(n_met):
-        k = met[i]
-        keys[i] = (ray_tri[k] * n_ts + out[k]) * S + k % S
-    keys = np.sort(keys)
+        start[met[i] % S + 1] += 1
+    for g in range(S):
+        start[g + 1] += start[g]
+    fill = start[:S].copy()
     src = np.empty(n_met, np.int64)
     dst = np.empty(n_met, np.int64)
-    count = np.zeros((n_met, 1 + S))
-    n_pairs = 0
-    i = 0
-    while i < n_met:
-        pair = keys[i] // S
-        src[n_pairs], dst[n_pairs] = pair // n_ts, pair % n_ts
-        while i < n_met and keys[i] // S == pair:
-            count[n_pairs, 0] += 1.0
-            count[n_pairs, 1 + keys[i] % S] += 1.0
-            i += 1
-        n_pairs += 1
-    return rays, direct, src[:n_pairs], dst[:n_pairs], count[:n_pairs]
+    weight = np.empty((n_met, n_b))
+    for i in range(n_met):
+        k = met[i]
+        g = k % S
+        p = fill[g]
+        fill[g] += 1
+        src[p], dst[p] = ray_tri[k], out[k]
+        for b in range(n_b):
+            weight[p, b] = through[k, b]
+    return rays, direct, src, dst, weight, start
 
 
 @njit(nogil=True, cache=True)
-def solve_passes(rays, direct, src, dst, count, ts_side, n_sides, reflect, transmit, tol, max_passes):
+def solve_passes(rays, direct, src, dst, link_w, ts_side, n_sides, reflect, transmit, tol, max_passes, start=None):
     """The irradiance of every element side, (sides, B): what its rays read of the field (``direct``, sums per
-    triangle side, ``rays`` their counts: one column of :func:`read_field`'s) plus the light the triangles send
+    triangle side, ``rays`` their counts: one column of :func:`read_field`'s, with its links) plus the light the triangles send
     each other, passes until the largest change is below ``tol`` × the largest irradiance (or ``max_passes``);
-    returns (E of the sides, passes).
+    returns (E of the sides, passes, E of the triangle sides).  ``start`` (triangle sides, B): where the passes
+    start (a solve of the same region from other rays; default: what the rays read of the field).
 
     A triangle side's irradiance is the mean of what its own rays read (the side's mean where it has none); its
     outgoing radiance (E_s · reflect_s + E_s' · transmit_s') / π (s' the other side of the triangle; ``reflect``,
@@ -269,6 +329,8 @@ def solve_passes(rays, direct, src, dst, count, ts_side, n_sides, reflect, trans
         for b in range(n_b):
             E[t, b] = direct[t, b] / rays[t] if rays[t] > 0 else E_side[s, b]
             top = max(top, E[t, b])
+            if start is not None:
+                E[t, b] = start[t, b]
     out = np.zeros((n_ts, n_b))
     acc = np.empty((n_ts, n_b))
     passes = 0
@@ -285,10 +347,8 @@ def solve_passes(rays, direct, src, dst, count, ts_side, n_sides, reflect, trans
                 out[t, b] = v
         acc[:, :] = direct
         for p in range(src.shape[0]):
-            c = count[p]
-            if c > 0.0:
-                for b in range(n_b):
-                    acc[src[p], b] += c * out[dst[p], b]
+            for b in range(n_b):
+                acc[src[p], b] += link_w[p, b] * out[dst[p], b]
         side_sum = np.zeros((n_sides, n_b))
         for t in range(n_ts):
             s = ts_side[t]
@@ -299,15 +359,16 @@ def solve_passes(rays, direct, src, dst, count, ts_side, n_sides, reflect, trans
             if side_rays[s] > 0:
                 for b in range(n_b):
                     E_side[s, b] = side_sum[s, b] / side_rays[s]
-        change = 0.0
+        done = True
         for t in range(n_ts):
             s = ts_side[t]
             if s < 0:
                 continue
             for b in range(n_b):
                 v = acc[t, b] / rays[t] if rays[t] > 0 else E_side[s, b]
-                change = max(change, abs(v - E[t, b]))
+                if abs(v - E[t, b]) > tol * (abs(v) + 1e-3 * top):
+                    done = False
                 E[t, b] = v
-        if change <= tol * top:
+        if done:
             break
-    return E_side, passes
+    return E_side, passes, E

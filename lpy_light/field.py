@@ -52,6 +52,8 @@ from .reuse import chamber_key
 
 #: photons per chunk of the field's trace
 FIELD_CHUNK = 32768
+#: passes of each σ group's solve, from the full solve's light
+GROUP_PASSES = 6
 
 
 @dataclass(frozen=True)
@@ -78,6 +80,9 @@ class FieldSettings:
         Rays from each piece of the chamber inside the region (the table under the plant).
     pieces : int
         The region's grid for the chamber's pieces, along its longest edge.
+    bounces : int
+        Where a ray meets a surface, its path goes on this many times before it reads the outgoing light of the
+        triangle it ends on (that triangle's mean: the bounces make what it reads local).
     growth, margin : float
         The region: the organs' bounds grown by ``growth`` × their size and ``margin`` metres each side.
     renew : int
@@ -94,13 +99,15 @@ class FieldSettings:
     shading_rays: int = 128
     piece_rays: int = 256
     pieces: int = 4
+    bounces: int = 1
     growth: float = 0.25
     margin: float = 0.1
     renew: int = 10
 
     def __post_init__(self):
         for name, lo in (("store_photons", 1), ("batches", 4), ("cells", 1), ("rings", 1), ("sectors", 1),
-                         ("rays", 1), ("shading_rays", 1), ("piece_rays", 1), ("pieces", 1), ("renew", 0)):
+                         ("rays", 1), ("shading_rays", 1), ("piece_rays", 1), ("pieces", 1), ("bounces", 0),
+                         ("renew", 0)):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, float, np.integer)) or value != int(value) \
                     or value < lo:
@@ -413,7 +420,7 @@ def side_budget(el, settings: FieldSettings, read=None, scale=None, groups: int 
 
 
 def field_step(kscene, field: LightField, settings: FieldSettings, seed: int = 1, threads: int | None = None,
-               read=None, scale=None, tol: float = 1e-6, max_passes: int = 64):
+               read=None, scale=None, tol: float = 1e-4, max_passes: int = 200):
     """One step of the plant now in ``kscene`` lit from ``field``; returns a :class:`lpy_light.simulate.Result` in
     the field's photons, σ from its batches (rays per side: :func:`side_budget`)."""
     from .simulate import Result
@@ -424,6 +431,8 @@ def field_step(kscene, field: LightField, settings: FieldSettings, seed: int = 1
     n_sides = len(rays)
     out = np.empty(int(ray_start[-1]), np.int64)
     ray_tri = np.empty(int(ray_start[-1]), np.int64)
+    through = np.empty((int(ray_start[-1]), kscene.n_bands))
+    refl, trans = np.ascontiguousarray(el["reflect"]), np.ascontiguousarray(el["transmit"])
     verts, n_one = el["verts"], el["n_one"]
     region = embree.EmbreeScene(one_sided=verts[:n_one] if n_one else None,
                                 two_sided=verts[n_one:] if len(verts) > n_one else None)
@@ -441,23 +450,28 @@ def field_step(kscene, field: LightField, settings: FieldSettings, seed: int = 1
         cast_rays(region.handle, intersect, scratch.ctypes.data, geom_offset, verts, el["normal"], offset_rel,
                   el["tri_side"], el["side_start"], el["side_tri"], el["side_cdf"], rays, ray_start,
                   int(bounds[i]), int(bounds[i + 1]), int(seed), field.box, field.grid, field.face0, field.rings,
-                  field.sectors, out, ray_tri)
+                  field.sectors, refl, trans, int(settings.bounces), out, ray_tri, through)
 
     with ThreadPoolExecutor(max_workers=workers) as pool:
         list(pool.map(part, range(len(bounds) - 1)))
     t_rays = time.perf_counter() - t0
     S, B = field.batches, kscene.n_bands
     ts_side = np.ascontiguousarray(el["tri_side"].reshape(-1))
-    counts, direct, src, dst, pairs = read_field(out, ray_tri, field.field, field.field.sum(axis=0),
-                                                 field.bins_per_cell, len(ts_side))
-    refl, trans = np.ascontiguousarray(el["reflect"]), np.ascontiguousarray(el["transmit"])
+    counts, direct, src, dst, link_w, link_start = read_field(out, ray_tri, through, field.field,
+                                                              field.field.sum(axis=0), field.bins_per_cell,
+                                                              len(ts_side))
 
-    def solve(c):
-        return solve_passes(counts[c], direct[c], src, dst, np.ascontiguousarray(pairs[:, c]), ts_side, n_sides,
-                            refl, trans, tol, max_passes)
+    t_read = time.perf_counter() - t0 - t_rays
 
-    E, passes = solve(0)
-    E_g = np.stack([solve(1 + g)[0] for g in range(S)])
+    def solve(c, passes, start=None):
+        a, b = (0, len(src)) if c == 0 else (link_start[c - 1], link_start[c])
+        return solve_passes(counts[c], direct[c], src[a:b], dst[a:b], link_w[a:b], ts_side, n_sides, refl, trans,
+                            tol, passes, start)
+
+    E, passes, E_ts = solve(0, max_passes)
+    # each group's own solve starts from the full one's light (its fixed point lies near it): a few passes
+    E_g = np.stack([solve(1 + g, min(max_passes, GROUP_PASSES), E_ts)[0] for g in range(S)])
+    t_solve = time.perf_counter() - t0 - t_rays - t_read
     # per organ: incident (both sides) and absorbed, × its area
     n_org = el["n_organs"]
     area = el["area"][:n_org]
@@ -486,6 +500,7 @@ def field_step(kscene, field: LightField, settings: FieldSettings, seed: int = 1
                     kscene.n_receivers, estimator="field", materials=[m.name for m in kscene.materials],
                     nee_stats=np.zeros((kscene.n_stats, 3)), batches=S)
     result.extra["field_step"] = {"rays": int(ray_start[-1]), "passes": int(passes), "rays_s": round(t_rays, 4),
+                                  "read_s": round(t_read, 4), "solve_s": round(t_solve, 4),
                                   "elements": int(el["n_elements"]), "pieces": int(len(field.pieces[2]))}
     region.close()
     return result

@@ -1,0 +1,157 @@
+"""The light field (``field``) against the full kernel (``nee``) on the same growing plant: error against time.
+
+The procedural rose of ``benchmarks/rose.py`` (its last stage: 516 organs; leaves and buds read, internodes shade)
+in ``angers-12bands``, 2 threads.  Per estimator and setting: the wall and CPU time of a step (the field's without
+tracing its field, which is printed apart: it is traced once per ``renew`` steps), the leaves' 90th-percentile and
+the buds' median relative σ on PAR, the buds' median σ on R:FR, and the bias against the full kernel at
+``--reference`` photons on the same plant: the mean over leaves and over buds of (x − ref) / ref on PAR with its
+standard error, the mean difference of the buds' R:FR, and the share of organs within max(4σ, 3 %) of the reference.
+
+``--weighted P``: also the ``weighted`` estimator (no next events: every photon's own hits) at P photons against
+the same reference: a check of the reference itself that shares none of its next-event machinery.
+
+    .venv/bin/python benchmarks/field.py [--reference 1e7] [--full 3e5 1.15e6 4e6] [--stores 2e6 8e6]
+                                         [--rays 256 1024 4096] [--cells 6] [--weighted 6.4e7]
+                                         [--reference-cache runs/field_ref.npz]
+                                         [--chart docs/efficiency/field.png] [--csv docs/efficiency/field.csv]
+"""
+from __future__ import annotations
+
+import argparse
+import csv
+import math
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from reuse import bias, lights_of, plant_model, precision, table  # noqa: E402
+
+from lpy_light.field import FieldSettings, build_field, field_step  # noqa: E402
+
+
+def within(tab, ref):
+    """The share of lit organs within max(4σ, 3 %) of the reference."""
+    mod, par, par_s, _, _ = tab
+    _, rpar, rpar_s, _, _ = ref
+    ok = (rpar > 0) & (par > 0) & np.isin(mod, ("Leaf", "Bud"))
+    tol = np.maximum(4 * np.hypot(par_s[ok], rpar_s[ok]), 0.03 * rpar[ok])
+    return float(np.mean(np.abs(par[ok] - rpar[ok]) <= tol))
+
+
+def timed(fn):
+    w, c = time.perf_counter(), time.process_time()
+    out = fn()
+    return out, time.perf_counter() - w, time.process_time() - c
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--stage", type=int, default=4)
+    ap.add_argument("--stages", type=int, default=4)
+    ap.add_argument("--reference", type=float, default=1e7, help="photons of the full kernel's reference")
+    ap.add_argument("--full", type=float, nargs="*", default=[3e5, 1.15e6, 4e6], help="photons of nee's steps")
+    ap.add_argument("--stores", type=float, nargs="+", default=[2e6, 8e6], help="photons of the fields")
+    ap.add_argument("--rays", type=int, nargs="+", default=[256, 1024, 4096], help="rays per side of a read organ")
+    ap.add_argument("--cells", type=int, nargs="+", default=[6], help="the field's cells along the region's edge")
+    ap.add_argument("--weighted", type=float, default=0, metavar="P", help="also the weighted estimator at P photons")
+    ap.add_argument("--reference-cache", default=None, metavar="FILE.npz")
+    ap.add_argument("--csv", default=None)
+    ap.add_argument("--chart", default=None)
+    args = ap.parse_args()
+
+    model, organs = plant_model(args.stage, args.stages, args.reference)
+    model.run(organs, photons=20_000)                 # compile, prune, pilots: not timed
+    cache = Path(args.reference_cache) if args.reference_cache else None
+    names = ("module", "par", "par_s", "rfr", "rfr_s")
+    if cache and cache.is_file() and float(np.load(cache)["photons"]) == args.reference:
+        ref = tuple(np.load(cache)[k] for k in names)
+    else:
+        ref, wall, cpu = timed(lambda: table(model.run(organs).organs, organs))
+        print("reference: full kernel, %.3g photons, %.0f s" % (args.reference, wall))
+        if cache:
+            cache.parent.mkdir(parents=True, exist_ok=True)
+            np.savez(cache, photons=args.reference, **dict(zip(names, ref)))
+    rows = []
+
+    def report(row):
+        rows.append(row)
+        print("%-8s %-26s %7.3f %7.3f %7.2f %7.2f %7.3f | %+6.2f±%.2f %+6.2f±%.2f %+7.3f±%.3f %6.1f%%" % (
+            row["estimator"], row["setting"], row["step_s"], row["cpu_s"], 100 * row["leaf_p90"],
+            100 * row["bud_med"], row["bud_rfr_sigma"], 100 * row["leaf_bias"], 100 * row["leaf_bias_se"],
+            100 * row["bud_bias"], 100 * row["bud_bias_se"], row["bud_rfr_bias"], row["bud_rfr_bias_se"],
+            100 * row["within"]), flush=True)
+
+    print("%-8s %-26s %7s %7s %7s %7s %7s | %12s %12s %15s %7s" % (
+        "", "setting", "step s", "CPU s", "leaf90", "bud med", "rfr σ", "leaf bias %", "bud bias %", "bud R:FR bias",
+        "within"))
+    for photons in args.full:
+        step, wall, cpu = timed(lambda: model.run(organs, photons=int(photons)))
+        tab = table(step.organs, organs)
+        report({"estimator": "nee", "setting": "%.3g photons" % photons, "step_s": wall, "cpu_s": cpu,
+                "store_s": 0.0, **precision(tab), **bias(tab, ref), "within": within(tab, ref)})
+    if args.weighted:
+        wmodel, _ = plant_model(args.stage, args.stages, args.weighted, estimator="weighted")
+        wmodel.flux, wmodel.flux_std = model.flux, model.flux_std
+        step, wall, cpu = timed(lambda: wmodel.run(organs))
+        tab = table(step.organs, organs)
+        report({"estimator": "weighted", "setting": "%.3g photons" % args.weighted, "step_s": wall, "cpu_s": cpu,
+                "store_s": 0.0, **precision(tab), **bias(tab, ref), "within": within(tab, ref)})
+
+    ks = model.kscene
+    read = np.array([o.module in ("Leaf", "Bud") for o in organs])
+    for cells in args.cells:
+        for store_photons in args.stores:
+            cfg = FieldSettings(store_photons=int(store_photons), cells=cells)
+            field, wall, cpu = timed(lambda: build_field(ks, cfg, seed=11, threads=2, flux=model.flux))
+            print("field of %.3g photons, %d cells: %.1f s (CPU %.1f s), %d crossings"
+                  % (store_photons, cells, wall, cpu, field.crossings), flush=True)
+            field_step(ks, field, cfg, seed=4, threads=2, read=read)          # compile: not timed
+            for rays in args.rays:
+                cfg_r = FieldSettings(store_photons=int(store_photons), cells=cells, rays=rays,
+                                      shading_rays=max(8, rays // 8))
+                result, wall_s, cpu_s = timed(lambda: field_step(ks, field, cfg_r, seed=5, threads=2, read=read))
+                tab = table(lights_of(model, organs, result), organs)
+                report({"estimator": "field", "setting": "%.3g ph, %d cells, %d rays" % (store_photons, cells, rays),
+                        "step_s": wall_s, "cpu_s": cpu_s, "store_s": wall, **precision(tab), **bias(tab, ref),
+                        "within": within(tab, ref)})
+            del field
+
+    if args.csv:
+        with open(args.csv, "w", newline="") as f:
+            w = csv.DictWriter(f, fieldnames=list(rows[0]))
+            w.writeheader()
+            w.writerows(rows)
+    if args.chart:
+        chart(rows, args.chart)
+
+
+def chart(rows, path):
+    """Error against CPU time per step: leaves' p90 σ and |bias| (left), buds' (right), per estimator."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    fig, axes = plt.subplots(1, 2, figsize=(12, 4.5))
+    for ax, (what, sig, b) in zip(axes, (("leaves", "leaf_p90", "leaf_bias"), ("buds", "bud_med", "bud_bias"))):
+        for est, marker in (("nee", "o"), ("field", "s"), ("weighted", "^")):
+            sel = [r for r in rows if r["estimator"] == est]
+            if not sel:
+                continue
+            t = [r["cpu_s"] for r in sel]
+            line, = ax.plot(t, [100 * r[sig] for r in sel], marker + "-", label="%s σ" % est)
+            ax.plot(t, [100 * abs(r[b]) for r in sel], marker + ":", color=line.get_color(), label="%s |bias|" % est)
+        ax.set_xscale("log")
+        ax.set_yscale("log")
+        ax.axhline(3, color="grey", lw=0.5)
+        ax.set_xlabel("CPU s per step (2 threads)")
+        ax.set_ylabel("%s: %% of PAR" % what)
+        ax.set_title("%s: σ (p90 leaves, median buds) and mean bias" % what)
+        ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+
+
+if __name__ == "__main__":
+    main()
