@@ -372,3 +372,49 @@ def solve_passes(rays, direct, src, dst, link_w, ts_side, n_sides, reflect, tran
         if done:
             break
     return E_side, passes, E
+
+
+@njit(nogil=True, cache=True)
+def side_links(src, dst, weight, ts_side, n_sides):
+    """The links between element sides: each triangle-side link (src, dst, weight (links, B)) summed by the
+    element sides (``ts_side``) of its ends; returns (src, dst, weight) of the distinct pairs, by src."""
+    n = src.shape[0]
+    n_b = weight.shape[1]
+    key = np.empty(n, np.int64)
+    for p in range(n):
+        a, b = ts_side[src[p]], ts_side[dst[p]]
+        key[p] = a * n_sides + b if a >= 0 and b >= 0 else -1
+    order = np.argsort(key)
+    out_src = np.empty(n, np.int64)
+    out_dst = np.empty(n, np.int64)
+    out_w = np.zeros((n, n_b))
+    m = -1
+    last = -2
+    for i in range(n):
+        p = order[i]
+        k = key[p]
+        if k < 0:
+            continue
+        if k != last:
+            m += 1
+            out_src[m], out_dst[m] = k // n_sides, k % n_sides
+            last = k
+        for b in range(n_b):
+            out_w[m, b] += weight[p, b]
+    return out_src[:m + 1], out_dst[:m + 1], out_w[:m + 1]
+
+
+@njit(nogil=True, cache=True)
+def side_sums(rays, direct, ts_side, n_sides):
+    """The rays and the field's direct sums of each element side, (sides,) and (sides, B), from those of its
+    triangle sides."""
+    n_b = direct.shape[1]
+    r = np.zeros(n_sides)
+    d = np.zeros((n_sides, n_b))
+    for t in range(ts_side.shape[0]):
+        s = ts_side[t]
+        if s >= 0:
+            r[s] += rays[t]
+            for b in range(n_b):
+                d[s, b] += direct[t, b]
+    return r, d

@@ -43,7 +43,7 @@ import numpy as np
 
 from .errors import InputError
 from .kernel import embree
-from .kernel.field import add_crossings, bin_crossings, cast_rays, read_field, solve_passes
+from .kernel.field import add_crossings, bin_crossings, cast_rays, read_field, side_links, side_sums, solve_passes
 from .kernel.records import ABSORB, DIFFUSE_R, DIFFUSE_T, REPLAY_STORE, SPECULAR_R, SPECULAR_T, START_W, VPL_W, \
     Replay, new_tallies
 from .kernel.tallies import N_COUNTERS
@@ -52,8 +52,9 @@ from .reuse import chamber_key
 
 #: photons per chunk of the field's trace
 FIELD_CHUNK = 32768
-#: passes of each σ group's solve, from the full solve's light
-GROUP_PASSES = 6
+#: passes by triangle side, from the light solved by element side; and of each σ group's solve from there
+TRIANGLE_PASSES = 2
+GROUP_PASSES = 2
 
 
 @dataclass(frozen=True)
@@ -468,8 +469,16 @@ def field_step(kscene, field: LightField, settings: FieldSettings, seed: int = 1
         return solve_passes(counts[c], direct[c], src[a:b], dst[a:b], link_w[a:b], ts_side, n_sides, refl, trans,
                             tol, passes, start)
 
-    E, passes, E_ts = solve(0, max_passes)
-    # each group's own solve starts from the full one's light (its fixed point lies near it): a few passes
+    # the light between organs to convergence by element sides (their links summed: few), then a few passes by
+    # triangle sides from there (what a ray reads where it ends is that triangle's light), then each σ group's
+    # own passes from the full solve's light
+    own = np.arange(n_sides, dtype=np.int64)
+    s_rays, s_direct = side_sums(counts[0], direct[0], ts_side, n_sides)
+    s_src, s_dst, s_w = side_links(src, dst, link_w, ts_side, n_sides)
+    E_side, passes, _ = solve_passes(s_rays, s_direct, s_src, s_dst, s_w, own, n_sides, refl, trans, tol,
+                                     max_passes, None)
+    start = np.where(ts_side[:, None] >= 0, E_side[np.maximum(ts_side, 0)], 0.0)
+    E, tri_passes, E_ts = solve(0, min(max_passes, TRIANGLE_PASSES), start)
     E_g = np.stack([solve(1 + g, min(max_passes, GROUP_PASSES), E_ts)[0] for g in range(S)])
     t_solve = time.perf_counter() - t0 - t_rays - t_read
     # per organ: incident (both sides) and absorbed, × its area
@@ -499,7 +508,7 @@ def field_step(kscene, field: LightField, settings: FieldSettings, seed: int = 1
     result = Result(N, tally, prod, counters, time.perf_counter() - t0, workers, seed, kscene.n_sensors,
                     kscene.n_receivers, estimator="field", materials=[m.name for m in kscene.materials],
                     nee_stats=np.zeros((kscene.n_stats, 3)), batches=S)
-    result.extra["field_step"] = {"rays": int(ray_start[-1]), "passes": int(passes), "rays_s": round(t_rays, 4),
+    result.extra["field_step"] = {"rays": int(ray_start[-1]), "passes": int(passes), "links": int(len(src)), "rays_s": round(t_rays, 4),
                                   "read_s": round(t_read, 4), "solve_s": round(t_solve, 4),
                                   "elements": int(el["n_elements"]), "pieces": int(len(field.pieces[2]))}
     region.close()
