@@ -4,6 +4,7 @@ rays kept inside the region.
 The scene (as ``test_reuse``'s): a room whose ceiling light comes through a diffusing sheet, one wall a perfect
 mirror (its light reaches the region through the field), a bud in a pocket under a thin translucent leaf (most of
 its light is what the leaf transmits and scatters: the passes between organs), and 24 more buds."""
+import dataclasses
 import math
 
 import numpy as np
@@ -59,12 +60,13 @@ def test_the_field_agrees_with_the_full_kernel_organ_by_organ(room, full):
 
 
 def test_without_the_passes_between_organs_the_pocket_bud_loses_its_light(room, full):
-    """The control: the same field read with no pass (no light between organs) leaves the bud under the leaf far
+    """The control: the same field read with no pass and no bounce (no light between organs) leaves the bud under the leaf far
     below the full kernel (z < -8): the passes are what light it."""
     model = _model(room, "field", seed=5)
     organs = model.organs_from_meshes(_plant())
     model.run(organs)                                    # the field, traced once
-    result = field_step(model.kscene, model.keeper.field, SMALL, seed=5, threads=2, max_passes=0)
+    result = field_step(model.kscene, model.keeper.field, dataclasses.replace(SMALL, bounces=0), seed=5,
+                        threads=2, max_passes=0)
     from lpy_light.organ_light import organ_lights
     lights = organ_lights(model.kscene, result, organs, model.flux, model.flux_std, model.chamber)
     pocket = lights[1]
