@@ -479,7 +479,9 @@ def field_step(kscene, field: LightField, settings: FieldSettings, seed: int = 1
                                      max_passes, None)
     start = np.where(ts_side[:, None] >= 0, E_side[np.maximum(ts_side, 0)], 0.0)
     E, tri_passes, E_ts = solve(0, min(max_passes, TRIANGLE_PASSES), start)
-    E_g = np.stack([solve(1 + g, min(max_passes, GROUP_PASSES), E_ts)[0] for g in range(S)])
+    with ThreadPoolExecutor(max_workers=workers) as pool:      # the groups' solves release the GIL
+        E_g = np.stack([e for e, _, _ in pool.map(lambda g: solve(1 + g, min(max_passes, GROUP_PASSES), E_ts),
+                                                   range(S))])
     t_solve = time.perf_counter() - t0 - t_rays - t_read
     # per organ: incident (both sides) and absorbed, × its area
     n_org = el["n_organs"]
