@@ -14,6 +14,7 @@ the same reference: a check of the reference itself that shares none of its next
                                          [--rays 256 1024 4096] [--cells 6] [--weighted 6.4e7]
                                          [--reference-cache runs/field_ref.npz]
                                          [--chart docs/efficiency/field.png] [--csv docs/efficiency/field.csv]
+    .venv/bin/python benchmarks/field.py --replot docs/efficiency/field.csv --chart docs/efficiency/field.png
 """
 from __future__ import annotations
 
@@ -60,7 +61,11 @@ def main():
     ap.add_argument("--reference-cache", default=None, metavar="FILE.npz")
     ap.add_argument("--csv", default=None)
     ap.add_argument("--chart", default=None)
+    ap.add_argument("--replot", default=None, metavar="CSV", help="only draw --chart from a --csv file")
     args = ap.parse_args()
+    if args.replot:
+        replot(args.replot, args.chart)
+        return
 
     model, organs = plant_model(args.stage, args.stages, args.reference)
     model.run(organs, photons=20_000)                 # compile, prune, pilots: not timed
@@ -129,28 +134,39 @@ def main():
 
 
 def chart(rows, path):
-    """Error against CPU time per step: leaves' p90 σ and |bias| (left), buds' (right), per estimator."""
+    """Error against CPU time per step: σ (solid) and |mean bias| (dotted) of the leaves (left, σ their 90th
+    percentile) and the buds (right, σ their median), one line per estimator and field."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     fig, axes = plt.subplots(1, 2, figsize=(12, 4.5))
-    for ax, (what, sig, b) in zip(axes, (("leaves", "leaf_p90", "leaf_bias"), ("buds", "bud_med", "bud_bias"))):
-        for est, marker in (("nee", "o"), ("field", "s"), ("weighted", "^")):
-            sel = [r for r in rows if r["estimator"] == est]
-            if not sel:
-                continue
-            t = [r["cpu_s"] for r in sel]
-            line, = ax.plot(t, [100 * r[sig] for r in sel], marker + "-", label="%s σ" % est)
-            ax.plot(t, [100 * abs(r[b]) for r in sel], marker + ":", color=line.get_color(), label="%s |bias|" % est)
+    lines = {}
+    for r in rows:
+        key = r["estimator"] if r["estimator"] != "field" else "field, " + r["setting"].split(" ph")[0] + " photons"
+        lines.setdefault(key, []).append(r)
+    for ax, (what, sig, b, title) in zip(axes, (("leaves", "leaf_p90", "leaf_bias", "leaves: p90 σ"),
+                                               ("buds", "bud_med", "bud_bias", "buds: median σ"))):
+        for key, sel in lines.items():
+            t = [float(r["cpu_s"]) for r in sel]
+            line, = ax.plot(t, [100 * float(r[sig]) for r in sel], "s-" if key.startswith("field") else "o-",
+                            label="%s σ" % key)
+            ax.plot(t, [100 * abs(float(r[b])) for r in sel], ":", marker=line.get_marker(), color=line.get_color(),
+                    label="%s |bias|" % key)
         ax.set_xscale("log")
         ax.set_yscale("log")
         ax.axhline(3, color="grey", lw=0.5)
-        ax.set_xlabel("CPU s per step (2 threads)")
-        ax.set_ylabel("%s: %% of PAR" % what)
-        ax.set_title("%s: σ (p90 leaves, median buds) and mean bias" % what)
+        ax.set_xlabel("CPU s per step (2 threads; the field's own tracing apart)")
+        ax.set_ylabel("% of PAR")
+        ax.set_title("%s and mean |bias| against nee 1e7" % title)
         ax.legend(fontsize=7)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
+
+
+def replot(csv_path, path):
+    """The chart again from a ``--csv`` file."""
+    with open(csv_path) as f:
+        chart(list(csv.DictReader(f)), path)
 
 
 if __name__ == "__main__":
