@@ -200,8 +200,8 @@ PINNED = {
             "room-line-weighted": "78a8eb623f8896e764d6e179bbeac9a23296507a92da155db9eb19c91912f74c",
             "room-lambertian-nee": "6f2a5d3354ab77db9e5a521a3a1a5e2112f057b10a7d7860125e435705e01ac3",
             "room-lambertian-analog": "cc89df8d5b9bd4290aa827d0fcfaab224ee1e242c05425dcd2f4942469039aff",
-            "rose-nee": "776b4fa672a098f0077627e4de867baa1deed4052a5895089325d54411efde4d",
-            "rose-cones": "1a33bdbbc2d21064a6079fe05cde25eee1189b954e8daf4ad52a5d9d7e689de0",
+            "rose-nee": "4a0f5be861c5f57c29904ebd100e76872601b422982638ff3a56d9ae35ee149f",
+            "rose-cones": "1b11bd39dac8d201a478b5d64065695bd70d28c9ab59807d910c01baa9472857",
         },
     },
 }
