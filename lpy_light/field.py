@@ -48,7 +48,7 @@ from .kernel.records import ABSORB, DIFFUSE_R, DIFFUSE_T, REPLAY_STORE, SPECULAR
     Replay, new_tallies
 from .kernel.tallies import N_COUNTERS
 from .kernel.trace import trace_chunk
-from .reuse import chamber_key
+from .reuse import chamber_key, inside
 
 #: photons per chunk of the field's trace
 FIELD_CHUNK = 32768
@@ -143,12 +143,6 @@ def plant_region(organs, metres_per_unit: float, settings: FieldSettings) -> np.
     lo, hi = pts.min(axis=0), pts.max(axis=0)
     grow = settings.growth * (hi - lo) + settings.margin / metres_per_unit
     return np.concatenate([lo - grow, hi + grow])
-
-
-def inside(box, organs) -> bool:
-    """Do ``organs`` lie within ``box`` (6,)?"""
-    pts = np.concatenate([np.asarray(o.triangles, float).reshape(-1, 3) for o in organs])
-    return bool(np.all(pts.min(axis=0) >= box[:3]) and np.all(pts.max(axis=0) <= box[3:]))
 
 
 def face_grid(box, cells: int):

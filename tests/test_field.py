@@ -16,7 +16,7 @@ from lpy_light.field import FieldSettings, clip_polygon, face_grid, field_step
 from lpy_light.kernel.field import field_bin
 from lpy_light.light import LightModel
 from scenes import write_scene
-from test_reuse import GREEN, ROOM, THIN, _plant
+from test_reuse import GREEN, ROOM, THIN, _light, _plant
 
 SMALL = FieldSettings(store_photons=400_000, batches=8, rays=512, shading_rays=64)
 
@@ -30,13 +30,6 @@ def _model(scene, estimator, photons=400_000, seed=1, field=SMALL):
     return LightModel(scene, organs={"Bud": GREEN, "Leaf": THIN}, lamp_flux=100.0, plant_unit="mm",
                       position=(500, 500, 0), photons=photons, estimator=estimator, seed=seed, threads=2,
                       field=field if estimator == "field" else None)
-
-
-def _light(model, organs):
-    """Each organ's ppfd in the first band and its σ, (n,) each, in the organs' order."""
-    lights = model.intercept(organs)
-    keys = sorted(lights)
-    return np.array([lights[k].ppfd[0] for k in keys]), np.array([lights[k].ppfd_std[0] for k in keys])
 
 
 @pytest.fixture(scope="module")

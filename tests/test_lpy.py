@@ -326,39 +326,22 @@ def test_the_viewer_shows_each_organs_par():
 
 @pytest.mark.lpy
 @lpy
-def test_grow_with_the_chamber_stored_once_says_which_store_lit_each_step(tmp_path):
-    """``grow --estimator reuse`` on the report's rose lit from outside (its Sweep leaves, internodes, flowers):
-    every step's organs get their light from a store, ``summary.json`` names the estimator, its settings and each
-    step's store (and why it was built), and a store serves several steps."""
+@pytest.mark.parametrize("estimator, name", [("reuse", "store"), ("field", "field")])
+def test_grow_with_the_chamber_stored_once_says_which_store_lit_each_step(tmp_path, estimator, name):
+    """``grow --estimator reuse`` (a store of the chamber's light) and ``--estimator field`` (the light entering the
+    plant's region) on the report's rose lit from outside (its Sweep leaves, internodes, flowers): every leaf read
+    gets its light with a σ below its value, ``summary.json`` names the estimator, its settings and each step's
+    store (and why it was built), and a store serves several steps."""
     p = _grow(SEED_ROSE, *SEED_ORGANS, "--at", "1280,860,980", "--targets", "Leaf,Bud", "--steps", 12,
-              "--estimator", "reuse", "--out", tmp_path)
+              "--estimator", estimator, "--out", tmp_path)
     assert p.returncode == 0, p.stderr
     rows = _rows(tmp_path / "organs.csv")
     leaves = [r for r in rows if r["module"] == "Leaf" and r["step"] == "11"]
     assert leaves and all(float(r["par"]) > 0 and 0 < float(r["par_std"]) < float(r["par"]) for r in leaves)
     summary = json.loads((tmp_path / "summary.json").read_text())
-    assert summary["estimator"] == "reuse" and summary["reuse"]["renew"] == 10
-    stores = [s["store"]["store"] for s in summary["steps"] if "store" in s]
+    assert summary["estimator"] == estimator and summary[estimator]["renew"] == 10
+    stores = [s["store"][name] for s in summary["steps"] if "store" in s]
     assert len(stores) == 12 and 1 <= summary["stores_built"] == len(set(stores)) < 12
-    assert summary["steps"][0]["store"]["why"] == "first step"
-
-
-@pytest.mark.lpy
-@lpy
-def test_grow_from_a_light_field_says_which_field_lit_each_step(tmp_path):
-    """``grow --estimator field`` on the report's rose lit from outside (its Sweep leaves, internodes, flowers):
-    every leaf read gets its light with a σ below its value, ``summary.json`` names the estimator, its settings and
-    each step's field (and why it was traced), and a field serves several steps."""
-    p = _grow(SEED_ROSE, *SEED_ORGANS, "--at", "1280,860,980", "--targets", "Leaf,Bud", "--steps", 12,
-              "--estimator", "field", "--out", tmp_path)
-    assert p.returncode == 0, p.stderr
-    rows = _rows(tmp_path / "organs.csv")
-    leaves = [r for r in rows if r["module"] == "Leaf" and r["step"] == "11"]
-    assert leaves and all(float(r["par"]) > 0 and 0 < float(r["par_std"]) < float(r["par"]) for r in leaves)
-    summary = json.loads((tmp_path / "summary.json").read_text())
-    assert summary["estimator"] == "field" and summary["field"]["renew"] == 10
-    fields = [s["store"]["field"] for s in summary["steps"] if "store" in s]
-    assert len(fields) == 12 and 1 <= summary["stores_built"] == len(set(fields)) < 12
     assert summary["steps"][0]["store"]["why"] == "first step"
 
 
