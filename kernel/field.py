@@ -135,8 +135,8 @@ def _offset(a, offset_rel):
 
 
 @njit(nogil=True, cache=True)
-def cast_rays(scene, intersect, scratch, geom_offset, verts, normal, offset_rel, tri_side, side_tri_start, side_tri,
-              side_cdf, side_rays, ray_start, first, last, seed, box, grid, face0, rings, sectors, reflect, transmit,
+def cast_rays(scene, intersect, scratch, geom_offset, verts, normal, offset_rel, tri_side, tri_start, tris,
+              tri_cdf, side_rays, ray_start, first, last, seed, box, grid, face0, rings, sectors, reflect, transmit,
               bounces, out, ray_tri, through):
     """Rays from the element sides ``first .. last − 1``: ``side_rays[s]`` from side s, written at
     ``out[ray_start[s]:]``: ≥ 0, the triangle side (2 t + 0 front, + 1 back, t a region triangle) where the ray's
@@ -144,8 +144,8 @@ def cast_rays(scene, intersect, scratch, geom_offset, verts, normal, offset_rel,
     (:data:`NOTHING`: it reads nothing); the triangle side it left from into ``ray_tri``, and its path's
     throughput per band into ``through`` (n, B).
 
-    Side s's points are drawn on its triangles ``side_tri[side_tri_start[s]:side_tri_start[s + 1]]`` by area
-    (``side_cdf``: their cumulative share, ending at 1), stratified (ray j in [j, j + 1) / n of the cumulative
+    Side s's points are drawn on its element's (e = s // 2) triangles ``tris[tri_start[e]:tri_start[e + 1]]`` by
+    area (``tri_cdf``: their cumulative share, ending at 1), stratified (ray j in [j, j + 1) / n of the cumulative
     area); its directions cosine-weighted about the triangle's normal, turned to the side (front: along the
     normal).  Where a ray meets a surface, its path goes on ``bounces`` times (reflected or transmitted, cosine-
     weighted, drawn by the band-mean shares of ``reflect`` and ``transmit`` (element sides, B), the throughput
@@ -160,7 +160,7 @@ def cast_rays(scene, intersect, scratch, geom_offset, verts, normal, offset_rel,
     n_b = reflect.shape[1]
     for s in range(first, last):
         n = side_rays[s]
-        lo, hi = side_tri_start[s], side_tri_start[s + 1]
+        lo, hi = tri_start[s // 2], tri_start[s // 2 + 1]
         if n <= 0 or hi <= lo:
             continue
         sign = 1.0 if s % 2 == 0 else -1.0
@@ -168,7 +168,7 @@ def cast_rays(scene, intersect, scratch, geom_offset, verts, normal, offset_rel,
         for j in range(n):
             k = ray_start[s] + j
             u = (j + uniform(state)) / n
-            t = side_tri[search_cdf(side_cdf, lo, hi - 1, u)]
+            t = tris[search_cdf(tri_cdf, lo, hi - 1, u)]
             ray_tri[k] = 2 * t + (s % 2)
             a = verts[t]
             u1, u2 = uniform(state), uniform(state)

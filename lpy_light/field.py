@@ -345,55 +345,28 @@ def region_elements(kscene, field: LightField):
     n_el = n_org + len(psource)
     tri_side = np.stack([2 * elem, 2 * elem + 1], axis=1)
     tri_side[:n_one, 1] = -1                     # one-sided pieces: not met from behind (Embree skips them too)
-    # each side's triangles (the element's), by cumulative area; the back of a one-sided piece has none
-    order = np.argsort(elem, kind="stable")
-    counts = np.bincount(elem, minlength=n_el)
-    start = np.concatenate([[0], np.cumsum(counts)])
-    side_start = np.zeros(2 * n_el + 1, np.int64)
-    side_tri = np.concatenate([order, order]) if len(order) else np.zeros(0, np.int64)
-    # side 2e lists the element's triangles at [start[e], start[e+1]) of the first copy, side 2e+1 of the second
-    side_first = np.empty(2 * n_el, np.int64)
-    side_first[0::2] = start[:-1]
-    side_first[1::2] = start[:-1] + len(order)
-    side_len = np.repeat(counts, 2)
-    side_len[1::2][one_sided_elements(n_org, powner, one, len(psource))] = 0
-    # lay the sides out contiguously: cast_rays reads side s's triangles at side_tri[side_start[s]:side_start[s+1]]
-    idx = np.concatenate([np.arange(side_first[s], side_first[s] + side_len[s]) for s in range(2 * n_el)]) \
-        if n_el else np.zeros(0, np.int64)
-    side_tri = side_tri[idx].astype(np.int64) if len(idx) else np.zeros(0, np.int64)
-    side_start[1:] = np.cumsum(side_len)
-    a = area[side_tri]
-    cdf = np.zeros(len(side_tri))
-    el_area = np.zeros(n_el)
-    np.add.at(el_area, elem, area)
-    for s in range(2 * n_el):
-        lo, hi = side_start[s], side_start[s + 1]
-        if hi > lo:
-            c = np.cumsum(a[lo:hi])
-            cdf[lo:hi] = c / c[-1]
-            cdf[hi - 1] = 1.0
+    # each element's triangles (both its sides draw their points there) and their cumulative share of its area
+    tris = np.argsort(elem, kind="stable").astype(np.int64)
+    tri_start = np.concatenate([[0], np.cumsum(np.bincount(elem, minlength=n_el))]).astype(np.int64)
+    el_area = np.bincount(elem, weights=area, minlength=n_el)
+    cum = np.cumsum(area[tris])
+    before = np.concatenate([[0.0], cum])[tri_start[:-1]]
+    owner = elem[tris]
+    tri_cdf = (cum - before[owner]) / np.maximum(el_area[owner], 1e-300)
+    tri_cdf[tri_start[1:][tri_start[1:] > tri_start[:-1]] - 1] = 1.0
+    has_back = np.ones(n_el, bool)
+    has_back[n_org + np.unique(powner[one])] = False
     # each side's material: the one a ray arriving on it meets (front: column 0, back: column 1)
     el_mat = np.zeros((n_el, 2), np.int64)
     el_mat[elem] = mat
     side_mat = el_mat.reshape(-1)
     reflect, transmit, absorb = _side_optics(kscene, side_mat)
-    has_back = np.ones(n_el, bool)
-    has_back[one_sided_elements(n_org, powner, one, len(psource))] = False
     reflect[1::2][~has_back] = transmit[1::2][~has_back] = 0.0
     transmit[0::2][~has_back] = 0.0
     return {"verts": verts, "normal": normal, "tri_side": tri_side.astype(np.int64), "n_one": n_one,
-            "side_start": side_start, "side_tri": side_tri, "side_cdf": cdf, "reflect": reflect,
+            "tri_start": tri_start, "tris": tris, "tri_cdf": tri_cdf, "reflect": reflect,
             "transmit": transmit, "absorb": absorb, "area": el_area, "n_organs": n_org, "n_elements": n_el,
             "has_back": has_back}
-
-
-def one_sided_elements(n_org, powner, one, n_pieces) -> np.ndarray:
-    """Element indices of the one-sided chamber pieces."""
-    if n_pieces == 0:
-        return np.zeros(0, np.int64)
-    piece_one = np.zeros(n_pieces, bool)
-    piece_one[powner[one]] = True
-    return n_org + np.flatnonzero(piece_one)
 
 
 def side_budget(el, settings: FieldSettings, read=None, scale=None, groups: int = 1) -> np.ndarray:
@@ -409,7 +382,7 @@ def side_budget(el, settings: FieldSettings, read=None, scale=None, groups: int 
         per[:n_org] *= np.asarray(scale, float)
     S = max(1, int(groups))
     rays = np.repeat((np.ceil(np.maximum(1, np.round(per)) / S) * S).astype(np.int64), 2)
-    rays[np.diff(el["side_start"]) == 0] = 0
+    rays[np.repeat(np.diff(el["tri_start"]) == 0, 2)] = 0
     rays[1::2][~el["has_back"]] = 0
     return rays
 
@@ -443,7 +416,7 @@ def field_step(kscene, field: LightField, settings: FieldSettings, seed: int = 1
     def part(i):
         scratch = embree.new_scratch()
         cast_rays(region.handle, intersect, scratch.ctypes.data, geom_offset, verts, el["normal"], offset_rel,
-                  el["tri_side"], el["side_start"], el["side_tri"], el["side_cdf"], rays, ray_start,
+                  el["tri_side"], el["tri_start"], el["tris"], el["tri_cdf"], rays, ray_start,
                   int(bounds[i]), int(bounds[i + 1]), int(seed), field.box, field.grid, field.face0, field.rings,
                   field.sectors, refl, trans, int(settings.bounces), out, ray_tri, through)
 
