@@ -160,7 +160,7 @@ class LightModel:
     field : mapping or None
         With ``estimator="field"``: its settings (:class:`lpy_light.field.FieldSettings`: ``store_photons``,
         ``batches``, ``cells``, ``rings``, ``sectors``, ``rays``, ``shading_rays``, ``piece_rays``, ``pieces``,
-        ``growth``, ``margin``, ``renew``).
+        ``bounces``, ``growth``, ``margin``, ``renew``).
     one_sided_organs : bool
         An ablation for comparisons, not physics (default False): organs are seen from their front only
         (the side their right-hand-rule normal points to), as engines that cull back faces see them (the
