@@ -622,7 +622,7 @@ def target_event(v, pick, w, u, stat, geo, mat, sens, tgt, photon, stats, n_out)
     # away from x, outside reaches()' window of 2·eps + END_REL·dist wherever x is met at a grazing angle from a
     # vertex a few mm away -- own events inside and beside buds, between leaves: in far red, where organs hardly
     # absorb and much of their light comes by such short legs, nee was 7 % low on the rose's buds (weighted and
-    # analog agreed with each other; tests/test_nee.py)
+    # analog agreed with each other; docs/physics.md, next-event tallies)
     sx, sy, sz = px - ox, py - oy, pz - oz
     dist = math.sqrt(sx * sx + sy * sy + sz * sz)
     dx, dy, dz = sx / dist, sy / dist, sz / dist
