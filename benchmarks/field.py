@@ -15,6 +15,7 @@ the same reference: a check of the reference itself that shares none of its next
                                          [--reference-cache runs/field_ref.npz]
                                          [--chart docs/efficiency/field.png] [--csv docs/efficiency/field.csv]
     .venv/bin/python benchmarks/field.py --replot docs/efficiency/field.csv --chart docs/efficiency/field.png
+    .venv/bin/python benchmarks/field.py --full --stores 2e6 --rays 1024 --spread 8 --reference-cache runs/field_ref.npz
 """
 from __future__ import annotations
 
@@ -58,6 +59,9 @@ def main():
     ap.add_argument("--rays", type=int, nargs="+", default=[256, 1024, 4096], help="rays per side of a read organ")
     ap.add_argument("--cells", type=int, nargs="+", default=[6], help="the field's cells along the region's edge")
     ap.add_argument("--weighted", type=float, default=0, metavar="P", help="also the weighted estimator at P photons")
+    ap.add_argument("--spread", type=int, default=0, metavar="N",
+                    help="also: N independent fields and rays (the first --stores, the middle --rays): each organ's "
+                         "spread over them against the σ it reports")
     ap.add_argument("--reference-cache", default=None, metavar="FILE.npz")
     ap.add_argument("--csv", default=None)
     ap.add_argument("--chart", default=None)
@@ -124,6 +128,9 @@ def main():
                         "within": within(tab, ref)})
             del field
 
+    if args.spread:
+        spread(ks, model, organs, read, int(args.stores[0]), args.rays[len(args.rays) // 2], args.spread)
+
     if args.csv:
         with open(args.csv, "w", newline="") as f:
             w = csv.DictWriter(f, fieldnames=list(rows[0]))
@@ -131,6 +138,26 @@ def main():
             w.writerows(rows)
     if args.chart:
         chart(rows, args.chart)
+
+
+def spread(ks, model, organs, read, store_photons, rays, n):
+    """``n`` independent fields (other seeds), one step each with its own rays: each organ's spread of PAR over
+    them against the σ it reports (honest: ~1)."""
+    cfg = FieldSettings(store_photons=store_photons, rays=rays)
+    tabs = []
+    for i in range(n):
+        field = build_field(ks, cfg, seed=100 + i, threads=2, flux=model.flux)
+        tabs.append(table(lights_of(model, organs, field_step(ks, field, cfg, seed=7 + i, threads=2, read=read)),
+                          organs))
+    par = np.array([t[1] for t in tabs])
+    par_s = np.array([t[2] for t in tabs])
+    mod = tabs[0][0]
+    ok = np.all(par > 0, axis=0) & np.isin(mod, ("Leaf", "Bud"))
+    ratio = np.std(par[:, ok], axis=0, ddof=1) / np.median(par_s[:, ok], axis=0)
+    print("%d independent fields of %.3g photons, %d rays: per organ, spread / reported σ: median %.3f (leaves %.3f, "
+          "buds %.3f; 10-90 %%: %.2f-%.2f)" % (n, store_photons, rays, np.median(ratio),
+                                               np.median(ratio[mod[ok] == "Leaf"]), np.median(ratio[mod[ok] == "Bud"]),
+                                               *np.percentile(ratio, [10, 90])))
 
 
 def chart(rows, path):
