@@ -134,10 +134,146 @@ def _offset(a, offset_rel):
     return offset_rel * 2.0 * mag
 
 
+@njit(cache=True)
+def exit_bin(box, grid, face0, rings, sectors, ox, oy, oz, dx, dy, dz):
+    """The field's bin that the ray o + t·d (o inside the region) leaves it by: the face whose plane it reaches
+    first, the cell there, and the direction the light arrives from (−d)."""
+    best, face = math.inf, 0
+    for ax in range(3):
+        o = ox if ax == 0 else (oy if ax == 1 else oz)
+        d = dx if ax == 0 else (dy if ax == 1 else dz)
+        if d > 0.0:
+            tt, f = (box[3 + ax] - o) / d, 2 * ax + 1
+        elif d < 0.0:
+            tt, f = (box[ax] - o) / d, 2 * ax
+        else:
+            continue
+        if tt < best:
+            best, face = tt, f
+    best = max(best, 0.0)
+    return field_bin(box, grid, face0, rings, sectors, face, ox + best * dx, oy + best * dy, oz + best * dz,
+                     -dx, -dy, -dz)
+
+
+@njit(cache=True)
+def sphere_bin(dx, dy, dz, n_z, n_phi):
+    """The bin of the unit direction d on the sphere cut in ``n_z`` bands of d_z (equal areas) × ``n_phi``
+    sectors of its azimuth: each bin 4π / (n_z · n_phi) sr."""
+    iz = min(max(int((dz + 1.0) * 0.5 * n_z), 0), n_z - 1)
+    phi = math.atan2(dy, dx)
+    if phi < 0.0:
+        phi += 2.0 * math.pi
+    return iz * n_phi + min(int(phi / (2.0 * math.pi) * n_phi), n_phi - 1)
+
+
+@njit(cache=True)
+def sphere_direction(b, n_z, n_phi, u1, u2):
+    """A direction uniform in sphere bin ``b`` (:func:`sphere_bin`)."""
+    iz, ip = b // n_phi, b % n_phi
+    z = -1.0 + 2.0 * (iz + u1) / n_z
+    r = math.sqrt(max(0.0, 1.0 - z * z))
+    phi = 2.0 * math.pi * (ip + u2) / n_phi
+    return r * math.cos(phi), r * math.sin(phi), z
+
+
+@njit(nogil=True, cache=True)
+def guide_tables(box, grid, face0, rings, sectors, light, centre, normals, n_z, n_phi, seed):
+    """Where each guided side's light comes from, as drawn by :func:`cast_rays`: for side i (centre (3,) and
+    normals (K, 3) of its triangles, drawn by area, turned to the side), each sphere bin (:func:`sphere_bin`)
+    weighted by ``light`` (bins,) of the field's bin a ray from the centre in a direction drawn in it leaves the
+    region by (the plant not in the way), times the mean over the normals of cos⁺; returns the bins' cumulative
+    shares (sides, n_z · n_phi) (rows of zeros: no light) ."""
+    n = centre.shape[0]
+    nb = n_z * n_phi
+    out = np.zeros((n, nb))
+    state = np.zeros(1, np.uint64)
+    K = normals.shape[1]
+    for i in range(n):
+        seed_stream(state, seed, i)
+        acc = 0.0
+        for b in range(nb):
+            dx, dy, dz = sphere_direction(b, n_z, n_phi, uniform(state), uniform(state))
+            c = 0.0
+            for k in range(K):
+                c += max(0.0, normals[i, k, 0] * dx + normals[i, k, 1] * dy + normals[i, k, 2] * dz)
+            if c > 0.0:
+                acc += c / K * light[exit_bin(box, grid, face0, rings, sectors, centre[i, 0], centre[i, 1],
+                                              centre[i, 2], dx, dy, dz)]
+            out[i, b] = acc
+        if acc > 0.0:
+            for b in range(nb):
+                out[i, b] /= acc
+            out[i, nb - 1] = 1.0
+    return out
+
+
+@njit(cache=True)
+def draw_direction(guide, gi, cosine_share, n_phi, nx, ny, nz, from_cosine, u1, u2, u3):
+    """A direction leaving a surface of unit normal n (its side's), from the uniforms u1, u2, u3, and its weight
+    against a cosine-weighted draw ((cos θ / π) / density).  ``gi`` < 0: cosine-weighted (u1, u2).  Else from
+    the mixture of ``cosine_share`` of the cosine and the rest of guide row ``gi`` (:func:`guide_tables`): drawn
+    by the cosine if ``from_cosine``, else a sphere bin by u1 from the row's cumulative shares, uniform within it
+    (u2, u3).  Weight 0: a direction behind the surface."""
+    if gi < 0:
+        dx, dy, dz = cosine_hemisphere(nx, ny, nz, u1, u2)
+        return dx, dy, dz, 1.0
+    n_guide = guide.shape[1]
+    n_z = n_guide // n_phi
+    if from_cosine:
+        dx, dy, dz = cosine_hemisphere(nx, ny, nz, u1, u2)
+    else:
+        gb = search_cdf(guide[gi], 0, n_guide - 1, u1)
+        dx, dy, dz = sphere_direction(gb, n_z, n_phi, u2, u3)
+    c = dx * nx + dy * ny + dz * nz
+    if not c > 0.0:
+        return dx, dy, dz, 0.0
+    gb = sphere_bin(dx, dy, dz, n_z, n_phi)
+    p_bin = guide[gi, gb] - (guide[gi, gb - 1] if gb > 0 else 0.0)
+    pdf = cosine_share * c / math.pi + (1.0 - cosine_share) * p_bin * n_guide / (4.0 * math.pi)
+    return dx, dy, dz, c / (math.pi * pdf)
+
+
+#: the fractional part of the golden ratio: the second coordinate of a rank-1 lattice of any size
+_LATTICE = 0.6180339887498949
+
+
+@njit(cache=True)
+def stratified_directions(state, n, groups, share, lattice, cosine):
+    """The first directions' uniforms of a side's ``n`` rays (ray j in group j mod ``groups``): within each
+    group, ``round(share · m)`` of its m rays draw from the cosine, the others from the guide (``share`` 1 or 0:
+    one kind), each kind's rays at the points of a rank-1 lattice (i / m', frac(i · φ)) shifted at random
+    (Cranley–Patterson) and dealt to the rays in a random order: stratified in the square, independent between
+    groups.  Fills ``lattice`` (n, 2) and ``cosine`` (n,) bool."""
+    m = n // groups
+    order = np.empty(m, np.int64)
+    for g in range(groups):
+        n_cos = int(round(share * m))
+        for i in range(m):
+            order[i] = i
+        for i in range(m - 1, 0, -1):                      # Fisher–Yates
+            r = int(uniform(state) * (i + 1))
+            order[i], order[r] = order[r], order[i]
+        s1, s2, t1, t2 = uniform(state), uniform(state), uniform(state), uniform(state)
+        for i in range(m):
+            j = g + groups * i
+            rank = order[i]
+            if rank < n_cos:
+                x = (rank + s1 * 1.0) / n_cos
+                y = rank * _LATTICE + s2
+                cosine[j] = True
+            else:
+                rank -= n_cos
+                x = (rank + t1) / (m - n_cos)
+                y = rank * _LATTICE + t2
+                cosine[j] = False
+            lattice[j, 0] = x - math.floor(x)
+            lattice[j, 1] = y - math.floor(y)
+
+
 @njit(nogil=True, cache=True)
 def cast_rays(scene, intersect, scratch, geom_offset, verts, normal, offset_rel, tri_side, tri_start, tris,
               tri_cdf, side_rays, ray_start, first, last, seed, box, grid, face0, rings, sectors, reflect, transmit,
-              bounces, out, ray_tri, through):
+              bounces, guide, guide_of, cosine_share, n_phi, groups, out, ray_tri, through):
     """Rays from the element sides ``first .. last − 1``: ``side_rays[s]`` from side s, written at
     ``out[ray_start[s]:]``: ≥ 0, the triangle side (2 t + 0 front, + 1 back, t a region triangle) where the ray's
     path ends on a surface, whose outgoing light it reads; < 0, −1 − the field's bin it left the region by
@@ -146,10 +282,14 @@ def cast_rays(scene, intersect, scratch, geom_offset, verts, normal, offset_rel,
 
     Side s's points are drawn on its element's (e = s // 2) triangles ``tris[tri_start[e]:tri_start[e + 1]]`` by
     area (``tri_cdf``: their cumulative share, ending at 1), stratified (ray j in [j, j + 1) / n of the cumulative
-    area); its directions cosine-weighted about the triangle's normal, turned to the side (front: along the
-    normal).  Where a ray meets a surface, its path goes on ``bounces`` times (reflected or transmitted, cosine-
-    weighted, drawn by the band-mean shares of ``reflect`` and ``transmit`` (element sides, B), the throughput
-    carrying each band's share over that probability) before it reads the surface's outgoing light: the light
+    area).  Its directions (:func:`draw_direction`), about the triangle's normal turned to the side (front: along
+    the normal): cosine-weighted where ``guide_of[s]`` < 0, else ``cosine_share`` of them cosine-weighted and the
+    rest from guide row ``guide_of[s]`` of ``guide`` (:func:`guide_tables`; ``n_phi`` sectors), the path's
+    throughput starting at (cos θ / π) / density; stratified within each of the ``groups`` groups of the side's
+    rays (:func:`stratified_directions`).  Where a ray meets a surface, its path goes on ``bounces`` times
+    (reflected or transmitted, drawn by the band-mean shares of ``reflect`` and ``transmit`` (element sides, B),
+    the throughput carrying each band's share over that probability; its direction drawn as above from the side
+    it leaves, at random) before it reads the surface's outgoing light: the light
     near the point it met, not the mean of that triangle, is what a surface inside another (a leaf through a bud)
     sends.  Side s's rays use the random stream (seed, s): the same on any number of threads.  ``tri_side``
     (T, 2): the element side a ray meets on triangle t from its front (column 0: the ray against the normal) and
@@ -158,6 +298,8 @@ def cast_rays(scene, intersect, scratch, geom_offset, verts, normal, offset_rel,
     rh = scratch + RAYHIT
     args = scratch + ARGS
     n_b = reflect.shape[1]
+    lattice = np.empty((0, 2))
+    cosine = np.empty(0, np.bool_)
     for s in range(first, last):
         n = side_rays[s]
         lo, hi = tri_start[s // 2], tri_start[s // 2 + 1]
@@ -165,6 +307,10 @@ def cast_rays(scene, intersect, scratch, geom_offset, verts, normal, offset_rel,
             continue
         sign = 1.0 if s % 2 == 0 else -1.0
         seed_stream(state, seed, s)
+        if lattice.shape[0] < n:
+            lattice = np.empty((n, 2))
+            cosine = np.empty(n, np.bool_)
+        stratified_directions(state, n, groups, cosine_share if guide_of[s] >= 0 else 1.0, lattice, cosine)
         for j in range(n):
             k = ray_start[s] + j
             u = (j + uniform(state)) / n
@@ -178,33 +324,23 @@ def cast_rays(scene, intersect, scratch, geom_offset, verts, normal, offset_rel,
             py = a[0, 1] + u1 * (a[1, 1] - a[0, 1]) + u2 * (a[2, 1] - a[0, 1])
             pz = a[0, 2] + u1 * (a[1, 2] - a[0, 2]) + u2 * (a[2, 2] - a[0, 2])
             nx, ny, nz = sign * normal[t, 0], sign * normal[t, 1], sign * normal[t, 2]
-            dx, dy, dz = cosine_hemisphere(nx, ny, nz, uniform(state), uniform(state))
+            gi = guide_of[s]
+            dx, dy, dz, w = draw_direction(guide, gi, cosine_share, n_phi, nx, ny, nz, cosine[j], lattice[j, 0],
+                                           lattice[j, 1], uniform(state))
+            for b in range(n_b):
+                through[k, b] = w
+            if w == 0.0:
+                out[k] = NOTHING
+                continue
             eps = _offset(a, offset_rel)
             ox, oy, oz = px + eps * nx, py + eps * ny, pz + eps * nz
-            for b in range(n_b):
-                through[k, b] = 1.0
             code = NOTHING
             for bounce in range(bounces + 1):
                 set_ray(scratch, ox, oy, oz, dx, dy, dz, _TFAR_MAX)
                 call_ptr3(intersect, scene, rh, args)
                 gid = load_u32(rh + GEOM_ID)
                 if gid == INVALID_ID:
-                    # the region's exit: the face whose plane the ray reaches first
-                    best, face = math.inf, 0
-                    for ax in range(3):
-                        o = ox if ax == 0 else (oy if ax == 1 else oz)
-                        d = dx if ax == 0 else (dy if ax == 1 else dz)
-                        if d > 0.0:
-                            tt, f = (box[3 + ax] - o) / d, 2 * ax + 1
-                        elif d < 0.0:
-                            tt, f = (box[ax] - o) / d, 2 * ax
-                        else:
-                            continue
-                        if tt < best:
-                            best, face = tt, f
-                    best = max(best, 0.0)
-                    qx, qy, qz = ox + best * dx, oy + best * dy, oz + best * dz
-                    code = -1 - field_bin(box, grid, face0, rings, sectors, face, qx, qy, qz, -dx, -dy, -dz)
+                    code = -1 - exit_bin(box, grid, face0, rings, sectors, ox, oy, oz, dx, dy, dz)
                     break
                 tri = np.int64(load_u32(rh + PRIM_ID)) + geom_offset[gid]
                 hnx, hny, hnz = normal[tri, 0], normal[tri, 1], normal[tri, 2]
@@ -228,15 +364,23 @@ def cast_rays(scene, intersect, scratch, geom_offset, verts, normal, offset_rel,
                 hx, hy, hz = ox + tt * dx, oy + tt * dy, oz + tt * dz
                 p_r = r_mean / (r_mean + t_mean)
                 side = -1.0 if back else 1.0          # the hit side's normal: towards where the ray came from
+                on = es                               # the element side the path leaves from
                 if uniform(state) < p_r:
                     for b in range(n_b):
                         through[k, b] *= reflect[es, b] / p_r
                 else:
                     side = -side
+                    on = es ^ 1
                     for b in range(n_b):
                         through[k, b] *= transmit[es, b] / (1.0 - p_r)
                 mx, my, mz = side * hnx, side * hny, side * hnz
-                dx, dy, dz = cosine_hemisphere(mx, my, mz, uniform(state), uniform(state))
+                dx, dy, dz, w = draw_direction(guide, guide_of[on], cosine_share, n_phi, mx, my, mz,
+                                               uniform(state) < cosine_share, uniform(state), uniform(state),
+                                               uniform(state))
+                if w == 0.0:
+                    break
+                for b in range(n_b):
+                    through[k, b] *= w
                 eps = _offset(verts[tri], offset_rel)
                 ox, oy, oz = hx + eps * mx, hy + eps * my, hz + eps * mz
             out[k] = code

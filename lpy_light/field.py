@@ -12,9 +12,10 @@ region around the plant.  Here that is traced once into a :class:`LightField` (:
    (bins of equal projected solid angle) and band: every photon segment of a full trace (the plant in place) that
    enters the box from outside, binned where it enters (:mod:`lpy_light.kernel.field`).  The store's photons are
    split in :attr:`FieldSettings.batches` independent parts: its own error is part of every step's σ.
-3. **The step**: from both sides of every organ and from the front of every chamber piece, cosine-weighted rays
-   from points drawn over it (stratified by area), traced against the region alone (its own Embree scene, built
-   each step); a ray that leaves the region reads the field where and in the direction it leaves; a ray that meets
+3. **The step**: from both sides of every organ and from the front of every chamber piece, rays from points
+   drawn over it (stratified by area), in directions drawn partly cosine-weighted and mostly from a guide: where,
+   from the side's centre, the field brings light (:func:`side_guides`), each ray weighed back to the cosine;
+   traced against the region alone (its own Embree scene, built each step); a ray that leaves the region reads the field where and in the direction it leaves; a ray that meets
    an organ or a piece reads that side's outgoing light, (E·R + E'·T) / π per band, from the irradiance of the
    previous pass: the passes are repeated until they no longer change (:func:`lpy_light.kernel.field.solve_passes`;
    the rays, and which side each met, are kept, so a pass is one sparse product).
@@ -43,7 +44,8 @@ import numpy as np
 
 from .errors import InputError
 from .kernel import embree
-from .kernel.field import add_crossings, bin_crossings, cast_rays, read_field, side_links, side_sums, solve_passes
+from .kernel.field import add_crossings, bin_crossings, cast_rays, guide_tables, read_field, side_links, side_sums, \
+    solve_passes
 from .kernel.records import ABSORB, DIFFUSE_R, DIFFUSE_T, REPLAY_STORE, SPECULAR_R, SPECULAR_T, START_W, VPL_W, \
     Replay, new_tallies
 from .kernel.tallies import N_COUNTERS
@@ -89,6 +91,13 @@ class FieldSettings:
     renew : int
         Steps after which the field is traced again with the plant then in place; 0: only when the chamber or the
         region changes.
+    guide_z, guide_phi : int
+        Each side's direction guide: the sphere in ``guide_z`` bands of equal area × ``guide_phi`` sectors, each
+        weighted by the field's light a ray from the side's centre that way reads (its bands summed, each as a
+        share of its total) × cos⁺; ``guide_z`` 0: cosine-weighted directions only.
+    cosine_share : float
+        The share of each guided side's first rays drawn cosine-weighted (the rest from its guide), in (0, 1]:
+        what keeps the directions the guide misjudges (the plant in the way, the organ's extent) sampled.
     """
 
     store_photons: int = 4_000_000
@@ -104,11 +113,14 @@ class FieldSettings:
     growth: float = 0.25
     margin: float = 0.1
     renew: int = 10
+    guide_z: int = 16
+    guide_phi: int = 32
+    cosine_share: float = 0.25
 
     def __post_init__(self):
         for name, lo in (("store_photons", 1), ("batches", 4), ("cells", 1), ("rings", 1), ("sectors", 1),
                          ("rays", 1), ("shading_rays", 1), ("piece_rays", 1), ("pieces", 1), ("bounces", 0),
-                         ("renew", 0)):
+                         ("renew", 0), ("guide_z", 0), ("guide_phi", 1)):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, float, np.integer)) or value != int(value) \
                     or value < lo:
@@ -120,6 +132,11 @@ class FieldSettings:
                     not 0 <= value <= 100:
                 raise InputError("field setting %r must be a number in 0..100, got %r" % (name, value))
             object.__setattr__(self, name, float(value))
+        if isinstance(self.cosine_share, bool) or not isinstance(self.cosine_share, (int, float, np.integer,
+                                                                                     np.floating)) \
+                or not 0 < self.cosine_share <= 1:
+            raise InputError("field setting 'cosine_share' must be a number in (0, 1], got %r" % (self.cosine_share,))
+        object.__setattr__(self, "cosine_share", float(self.cosine_share))
 
 
 def field_settings(spec) -> FieldSettings:
@@ -387,6 +404,43 @@ def side_budget(el, settings: FieldSettings, read=None, scale=None, groups: int 
     return rays
 
 
+#: normals of each guided side the guide weighs directions by (drawn by area over its triangles)
+GUIDE_NORMALS = 8
+
+
+def side_guides(el, field: LightField, rays, settings: FieldSettings, seed: int):
+    """The direction guides of the sides that cast ``settings.rays``-many rays or more and of the chamber pieces
+    (:func:`lpy_light.kernel.field.guide_tables`), from the field's light summed over its bands, each band as a
+    share of its total; returns (guide (G, bins), guide_of (sides,) −1: cosine alone)."""
+    n_dirs = settings.guide_z * settings.guide_phi
+    n_sides = len(rays)
+    guide_of = np.full(n_sides, -1, np.int64)
+    if n_dirs == 0 or settings.cosine_share >= 1.0:
+        return np.zeros((1, 1)), guide_of
+    n_org = el["n_organs"]
+    sides = np.flatnonzero(np.repeat(np.diff(el["tri_start"]) > 0, 2))
+    if len(sides) == 0:
+        return np.zeros((1, 1)), guide_of
+    total = field.field.sum(axis=0)
+    light = (total / np.maximum(total.sum(axis=0), 1e-300)).sum(axis=1)
+    elem = sides // 2
+    sign = np.where(sides % 2 == 0, 1.0, -1.0)
+    u = (np.arange(GUIDE_NORMALS) + 0.5) / GUIDE_NORMALS
+    lo, hi = el["tri_start"][elem], el["tri_start"][elem + 1]
+    cdf = el["tri_cdf"]
+    picks = np.empty((len(sides), GUIDE_NORMALS), np.int64)
+    for i, (a, b) in enumerate(zip(lo, hi)):
+        picks[i] = el["tris"][a + np.minimum(np.searchsorted(cdf[a:b], u, "right"), b - a - 1)]
+    normals = el["normal"][picks] * sign[:, None, None]
+    verts = el["verts"]
+    centre = verts[picks].mean(axis=(1, 2))
+    table = guide_tables(field.box, field.grid, field.face0, field.rings, field.sectors, light, centre,
+                         np.ascontiguousarray(normals), settings.guide_z, settings.guide_phi, int(seed) + 104729)
+    lit = table[:, -1] > 0
+    guide_of[sides[lit]] = np.arange(int(lit.sum()))
+    return np.ascontiguousarray(table[lit]) if lit.any() else np.zeros((1, 1)), guide_of
+
+
 def field_step(kscene, field: LightField, settings: FieldSettings, seed: int = 1, threads: int | None = None,
                read=None, scale=None, tol: float = 1e-4, max_passes: int = 200):
     """One step of the plant now in ``kscene`` lit from ``field``; returns a :class:`lpy_light.simulate.Result` in
@@ -407,6 +461,7 @@ def field_step(kscene, field: LightField, settings: FieldSettings, seed: int = 1
     geom_offset = np.array([0, n_one, 0, 0], np.int64)
     intersect = embree.intersect1_address()
     offset_rel = float(kscene.chamber.physics.offset)
+    guide, guide_of = side_guides(el, field, rays, settings, seed)
     workers = max(1, threads or 2)
     # the sides in parts of about equal rays, one thread each at a time
     n_parts = max(1, min(n_sides, 4 * workers))
@@ -418,7 +473,8 @@ def field_step(kscene, field: LightField, settings: FieldSettings, seed: int = 1
         cast_rays(region.handle, intersect, scratch.ctypes.data, geom_offset, verts, el["normal"], offset_rel,
                   el["tri_side"], el["tri_start"], el["tris"], el["tri_cdf"], rays, ray_start,
                   int(bounds[i]), int(bounds[i + 1]), int(seed), field.box, field.grid, field.face0, field.rings,
-                  field.sectors, refl, trans, int(settings.bounces), out, ray_tri, through)
+                  field.sectors, refl, trans, int(settings.bounces), guide, guide_of, float(settings.cosine_share),
+                  int(settings.guide_phi), int(field.batches), out, ray_tri, through)
 
     with ThreadPoolExecutor(max_workers=workers) as pool:
         list(pool.map(part, range(len(bounds) - 1)))

@@ -13,7 +13,8 @@ import trimesh
 
 from lpy_light.errors import InputError
 from lpy_light.field import FieldSettings, clip_polygon, face_grid, field_step
-from lpy_light.kernel.field import field_bin
+from lpy_light.kernel.field import draw_direction, field_bin, guide_tables, sphere_bin, stratified_directions
+from lpy_light.kernel.rng import seed_stream
 from lpy_light.light import LightModel
 from scenes import write_scene
 from test_reuse import GREEN, ROOM, THIN, _light, _plant
@@ -141,3 +142,68 @@ def test_a_triangle_clipped_to_a_box_keeps_the_part_inside():
     assert np.allclose(poly.min(axis=0), [0, 0, 0.5]) and np.allclose(poly.max(axis=0), [1, 1, 0.5])
     area = 0.5 * abs(sum(np.cross(poly[i], poly[(i + 1) % len(poly)])[2] for i in range(len(poly))))
     assert area == pytest.approx(1.0)
+
+
+def _guided(guide, normal, share, n, seed=3, groups=8):
+    """n directions drawn as a step draws a side's first rays, from ``guide`` (1, bins) mixed with ``share`` of
+    the cosine; their (n, 3) directions and weights."""
+    state = np.zeros(1, np.uint64)
+    seed_stream(state, seed, 0)
+    lattice, cosine = np.empty((n, 2)), np.empty(n, bool)
+    stratified_directions(state, n, groups, share, lattice, cosine)
+    rng = np.random.default_rng(seed)
+    out = [draw_direction(guide, 0, share, 32, *normal, cosine[j], lattice[j, 0], lattice[j, 1], rng.random())
+           for j in range(n)]
+    return np.array([o[:3] for o in out]), np.array([o[3] for o in out])
+
+
+def test_guided_directions_weigh_back_to_the_cosine():
+    """Directions drawn from a peaked guide mixed with the cosine, each weighed by (cos θ / π) / its density:
+    over any set of directions the weights' mean is that set's cosine-weighted share (the guide changes where
+    the rays go, not what they estimate): the whole hemisphere (1), a cone about the normal (sin² of its half
+    angle), and single sphere bins (their integral of cos θ / π), within 4σ; a density that left out the bins'
+    solid angle fails."""
+    rng = np.random.default_rng(2)
+    weights = rng.random(512) ** 8                           # a few bright bins hold most of the guide
+    guide = (np.cumsum(weights) / weights.sum())[None]
+    normal = np.array([0.3, -0.5, 0.8]) / np.linalg.norm([0.3, -0.5, 0.8])
+    d, w = _guided(guide, normal, 0.25, 16384)
+    n = len(w)
+
+    def check(inside, expected):
+        f = w * inside
+        assert abs(f.mean() - expected) < 4 * f.std() / math.sqrt(n) + 1e-12, (f.mean(), expected)
+
+    check(np.ones(n), 1.0)
+    cos = d @ normal
+    check(cos > math.cos(0.6), math.sin(0.6) ** 2)
+    bins = np.array([sphere_bin(*x, 16, 32) for x in d])
+    for b in [int(np.argmax(weights)), *np.argsort(weights)[-4:-1], 300]:
+        iz, ip = divmod(int(b), 32)
+        z = -1 + 2 * (iz + (np.arange(200) + 0.5) / 200) / 16
+        phi = 2 * math.pi * (ip + (np.arange(200) + 0.5) / 200) / 32
+        r = np.sqrt(1 - z[:, None] ** 2)
+        c = r * np.cos(phi) * normal[0] + r * np.sin(phi) * normal[1] + z[:, None] * normal[2]
+        exact = np.maximum(c, 0).mean() / math.pi * 4 * math.pi / 512
+        check(bins == b, exact)
+
+
+def test_a_guide_points_where_the_field_brings_light():
+    """Light that enters the region only through its top face, downwards: a guide from the box's centre puts all
+    its weight on directions that leave by the top; none below the side it is drawn for."""
+    box = np.array([0.0, 0.0, 0.0, 1.0, 1.0, 1.0])
+    grid, face0 = face_grid(box, 2)
+    rings, sectors = 4, 8
+    light = np.zeros(int((grid[:, 0] * grid[:, 1]).sum()) * rings * sectors)
+    top = slice(face0[5] * rings * sectors, (face0[5] + grid[5, 0] * grid[5, 1]) * rings * sectors)
+    light[top] = 1.0
+    normals = np.array([[[0.0, 0.0, 1.0]] * 2, [[1.0, 0.0, 0.0]] * 2])
+    cdf = guide_tables(box, grid, face0, rings, sectors, light, np.array([[0.5, 0.5, 0.5]] * 2), normals, 16, 32, 1)
+    share = np.diff(np.concatenate([[0.0], cdf[0]]))
+    z_band = np.arange(512) // 32
+    assert share.sum() == pytest.approx(1.0)
+    assert share[z_band < 8].sum() == 0.0                       # below the horizon of the side
+    assert share[z_band >= 12].sum() > 0.9                      # steep enough to leave by the top
+    # a side facing +x sees the top only through directions that also point up
+    share_x = np.diff(np.concatenate([[0.0], cdf[1]]))
+    assert share_x[z_band < 8].sum() == 0.0 and share_x.sum() == pytest.approx(1.0)
