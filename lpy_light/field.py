@@ -15,10 +15,11 @@ region around the plant.  Here that is traced once into a :class:`LightField` (:
 3. **The step**: from both sides of every organ and from the front of every chamber piece, rays from points
    drawn over it (stratified by area), in directions drawn partly cosine-weighted and mostly from a guide: where,
    from the side's centre, the field brings light (:func:`side_guides`), each ray weighed back to the cosine;
-   traced against the region alone (its own Embree scene, built each step); a ray that leaves the region reads the field where and in the direction it leaves; a ray that meets
-   an organ or a piece reads that side's outgoing light, (E·R + E'·T) / π per band, from the irradiance of the
-   previous pass: the passes are repeated until they no longer change (:func:`lpy_light.kernel.field.solve_passes`;
-   the rays, and which side each met, are kept, so a pass is one sparse product).
+   traced against the region alone (its own Embree scene, built each step); a ray that leaves the region reads
+   the field where and in the direction it leaves; a ray that meets an organ or a piece reads that side's
+   outgoing light, (E·R + E'·T) / π per band, from the irradiance of the previous pass: the passes are repeated
+   until they no longer change (:func:`lpy_light.kernel.field.solve_passes`; the rays, and which side each met,
+   are kept, so a pass is one sparse product).
 4. **σ**: the rays of each side are split in as many groups as the store has batches; group g, read against batch
    g of the store alone, gives one independent estimate of the step: their spread is the step's σ, the store's own
    error included.
