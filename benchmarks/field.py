@@ -12,6 +12,7 @@ the same reference: a check of the reference itself that shares none of its next
 
     .venv/bin/python benchmarks/field.py [--reference 1e7] [--full 3e5 1.15e6 4e6] [--stores 2e6 8e6]
                                          [--rays 256 1024 4096] [--cells 6] [--weighted 6.4e7]
+                                         [--scene chambre2] [--position X Y Z]
                                          [--reference-cache runs/field_ref.npz]
                                          [--chart docs/efficiency/field.png] [--csv docs/efficiency/field.csv]
     .venv/bin/python benchmarks/field.py --replot docs/efficiency/field.csv --chart docs/efficiency/field.png
@@ -62,6 +63,9 @@ def main():
     ap.add_argument("--spread", type=int, default=0, metavar="N",
                     help="also: N independent fields and rays (the first --stores, the middle --rays): each organ's "
                          "spread over them against the σ it reports")
+    ap.add_argument("--scene", default="angers-12bands", help="the chamber (a built-in name or a .toml)")
+    ap.add_argument("--position", type=float, nargs=3, default=None, metavar=("X", "Y", "Z"),
+                    help="where the rose stands (chamber units; default: the scene's plant_position)")
     ap.add_argument("--reference-cache", default=None, metavar="FILE.npz")
     ap.add_argument("--csv", default=None)
     ap.add_argument("--chart", default=None)
@@ -71,18 +75,20 @@ def main():
         replot(args.replot, args.chart)
         return
 
-    model, organs = plant_model(args.stage, args.stages, args.reference)
+    model, organs = plant_model(args.stage, args.stages, args.reference, scene=args.scene, position=args.position)
+    where = "%s at %s" % (args.scene, "its plant_position" if args.position is None else args.position)
     model.run(organs, photons=20_000)                 # compile, prune, pilots: not timed
     cache = Path(args.reference_cache) if args.reference_cache else None
     names = ("module", "par", "par_s", "rfr", "rfr_s")
-    if cache and cache.is_file() and float(np.load(cache)["photons"]) == args.reference:
+    if cache and cache.is_file() and float(np.load(cache)["photons"]) == args.reference and \
+            str(np.load(cache).get("where", where)) == where:
         ref = tuple(np.load(cache)[k] for k in names)
     else:
         ref, wall, cpu = timed(lambda: table(model.run(organs).organs, organs))
         print("reference: full kernel, %.3g photons, %.0f s" % (args.reference, wall))
         if cache:
             cache.parent.mkdir(parents=True, exist_ok=True)
-            np.savez(cache, photons=args.reference, **dict(zip(names, ref)))
+            np.savez(cache, photons=args.reference, where=where, **dict(zip(names, ref)))
     rows = []
 
     def report(row):
@@ -102,7 +108,8 @@ def main():
         report({"estimator": "nee", "setting": "%.3g photons" % photons, "step_s": wall, "cpu_s": cpu,
                 "store_s": 0.0, **precision(tab), **bias(tab, ref), "within": within(tab, ref)})
     if args.weighted:
-        wmodel, _ = plant_model(args.stage, args.stages, args.weighted, estimator="weighted")
+        wmodel, _ = plant_model(args.stage, args.stages, args.weighted, estimator="weighted", scene=args.scene,
+                                position=args.position)
         wmodel.flux, wmodel.flux_std = model.flux, model.flux_std
         step, wall, cpu = timed(lambda: wmodel.run(organs))
         tab = table(step.organs, organs)

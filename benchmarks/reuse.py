@@ -41,9 +41,10 @@ from lpy_light.reuse import ReuseSettings, build_store, gather_step, plant_box  
 ORGANS = {"Leaf": LEAF_MATERIAL, "Internode": LEAF_MATERIAL[0], "Bud": LEAF_MATERIAL[0]}
 
 
-def plant_model(stage, stages, photons, estimator="nee", targets=("Leaf", "Bud")):
-    model = LightModel("angers-12bands", photons=int(photons), plant_unit="cm", organs=ORGANS, threads=2,
-                       estimator=estimator, targets=targets)
+def plant_model(stage, stages, photons, estimator="nee", targets=("Leaf", "Bud"), scene="angers-12bands",
+                position=None):
+    model = LightModel(scene, photons=int(photons), plant_unit="cm", organs=ORGANS, threads=2,
+                       estimator=estimator, targets=targets, position=position)
     organs = model.organs_from_meshes({k: (m, mat, mod) for k, (m, mat, mod) in rose(stage, stages).items()})
     return model, organs
 
