@@ -11,7 +11,7 @@ standard error, the mean difference of the buds' R:FR, and the share of organs w
 the same reference: a check of the reference itself that shares none of its next-event machinery.
 
     .venv/bin/python benchmarks/field.py [--reference 1e7] [--full 3e5 1.15e6 4e6] [--stores 2e6 8e6]
-                                         [--rays 256 1024 4096] [--cells 6] [--weighted 6.4e7]
+                                         [--rays 256 1024 4096] [--cells 8] [--weighted 6.4e7]
                                          [--scene chambre2] [--position X Y Z]
                                          [--reference-cache runs/field_ref.npz]
                                          [--chart docs/efficiency/field.png] [--csv docs/efficiency/field.csv]
@@ -58,7 +58,8 @@ def main():
     ap.add_argument("--full", type=float, nargs="*", default=[3e5, 1.15e6, 4e6], help="photons of nee's steps")
     ap.add_argument("--stores", type=float, nargs="+", default=[2e6, 8e6], help="photons of the fields")
     ap.add_argument("--rays", type=int, nargs="+", default=[256, 1024, 4096], help="rays per side of a read organ")
-    ap.add_argument("--cells", type=int, nargs="+", default=[6], help="the field's cells along the region's edge")
+    ap.add_argument("--cells", type=int, nargs="+", default=[FieldSettings().cells],
+                    help="the field's cells along the region's edge")
     ap.add_argument("--weighted", type=float, default=0, metavar="P", help="also the weighted estimator at P photons")
     ap.add_argument("--spread", type=int, default=0, metavar="N",
                     help="also: N independent fields and rays (the first --stores, the middle --rays): each organ's "

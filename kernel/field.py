@@ -390,16 +390,18 @@ def cast_rays(scene, intersect, scratch, geom_offset, verts, normal, offset_rel,
 def read_field(out, ray_tri, through, field, field_total, bins_per_cell, n_ts):
     """What the rays read, per triangle side (2 t + 0 front, + 1 back; ``n_ts`` of them) of the region: returns
     ``rays`` (1 + S, n_ts) how many rays left each (all, then each group g: the rays j ≡ g mod S of their side,
-    ``ray_tri`` order), ``direct`` (1 + S, n_ts, B) the sums of what those that left the region read there
-    (``bins_per_cell`` × the field × the ray's throughput: all of it, then S × its batch g for group g), and the
-    links: for each ray whose path ended on a surface, its triangle side ``src``, the one it ended on ``dst`` and
-    its throughput ``weight`` (links, B), by group: group g's links are ``start[g]:start[g + 1]``.  A ray's group is its index mod S
-    (each side's rays start at a multiple of S: :func:`lpy_light.field.side_budget`)."""
+    ``ray_tri`` order), ``direct`` (1 + 2S, n_ts, B) the sums of what those that left the region read there
+    (``bins_per_cell`` × the field × the ray's throughput): [0] all rays, the whole field; [1 + g] group g's rays,
+    the whole field (the rays' own spread); [1 + S + g] all rays, S × batch g of the field alone (the field's
+    own spread); and the links: for each ray whose path ended on a surface, its triangle side ``src``, the one it
+    ended on ``dst`` and its throughput ``weight`` (links, B), by group: group g's links are
+    ``start[g]:start[g + 1]``.  A ray's group is its index mod S (each side's rays start at a multiple of S:
+    :func:`lpy_light.field.side_budget`)."""
     S = field.shape[0]
     n_b = field.shape[2]
     n = out.shape[0]
     rays = np.zeros((1 + S, n_ts))
-    direct = np.zeros((1 + S, n_ts, n_b))
+    direct = np.zeros((1 + 2 * S, n_ts, n_b))
     met = np.empty(n, np.int64)
     n_met = 0
     for k in range(n):
@@ -414,8 +416,12 @@ def read_field(out, ray_tri, through, field, field_total, bins_per_cell, n_ts):
         elif code != NOTHING:
             j = -1 - code
             for b in range(n_b):
-                direct[0, ts, b] += bins_per_cell * through[k, b] * field_total[j, b]
-                direct[1 + g, ts, b] += bins_per_cell * S * through[k, b] * field[g, j, b]
+                v = bins_per_cell * through[k, b] * field_total[j, b]
+                direct[0, ts, b] += v
+                direct[1 + g, ts, b] += v
+            for h in range(S):
+                for b in range(n_b):
+                    direct[1 + S + h, ts, b] += bins_per_cell * S * through[k, b] * field[h, j, b]
     # the links by group (a counting sort): group g's are start[g]:start[g + 1]
     start = np.zeros(S + 1, np.int64)
     for i in range(n_met):

@@ -20,9 +20,11 @@ region around the plant.  Here that is traced once into a :class:`LightField` (:
    outgoing light, (E·R + E'·T) / π per band, from the irradiance of the previous pass: the passes are repeated
    until they no longer change (:func:`lpy_light.kernel.field.solve_passes`; the rays, and which side each met,
    are kept, so a pass is one sparse product).
-4. **σ**: the rays of each side are split in as many groups as the store has batches; group g, read against batch
-   g of the store alone, gives one independent estimate of the step: their spread is the step's σ, the store's own
-   error included.
+4. **σ**: the rays' part and the field's, apart.  The rays of each side are split in as many groups as the store
+   has batches; group g, read against the whole field, gives one estimate of the step: their spread is the
+   rays'.  All the rays read against batch g of the store alone give another: their spread is the field's own.
+   (A group read against its own batch alone would also spread by the two crossed, which the step's estimate,
+   every ray reading every batch, does not have: where the field's bins are fine, that overstated σ.)
 
 Bias, by construction: the field is binned (a ray reads the mean of its bin: light that varies within a cell or a
 direction bin is averaged there, with the shading of the current plant), an element's outgoing light is its mean
@@ -103,9 +105,9 @@ class FieldSettings:
 
     store_photons: int = 4_000_000
     batches: int = 8
-    cells: int = 6
-    rings: int = 8
-    sectors: int = 16
+    cells: int = 8
+    rings: int = 10
+    sectors: int = 20
     rays: int = 1024
     shading_rays: int = 128
     piece_rays: int = 256
@@ -493,9 +495,14 @@ def field_step(kscene, field: LightField, settings: FieldSettings, seed: int = 1
         return solve_passes(counts[c], direct[c], src[a:b], dst[a:b], link_w[a:b], ts_side, n_sides, refl, trans,
                             tol, passes, start)
 
+    def solve_batch(g, passes, start):          # all the rays, batch g of the field alone
+        return solve_passes(counts[0], direct[1 + S + g], src, dst, link_w, ts_side, n_sides, refl, trans, tol,
+                            passes, start)
+
     # the light between organs to convergence by element sides (their links summed: few), then a few passes by
-    # triangle sides from there (what a ray reads where it ends is that triangle's light), then each σ group's
-    # own passes from the full solve's light
+    # triangle sides from there (what a ray reads where it ends is that triangle's light), then, from the full
+    # solve's light, the own passes of each σ group of rays (the whole field) and of each batch of the field
+    # (all the rays): the rays' spread and the field's, apart
     own = np.arange(n_sides, dtype=np.int64)
     s_rays, s_direct = side_sums(counts[0], direct[0], ts_side, n_sides)
     s_src, s_dst, s_w = side_links(src, dst, link_w, ts_side, n_sides)
@@ -503,9 +510,10 @@ def field_step(kscene, field: LightField, settings: FieldSettings, seed: int = 1
                                      max_passes, None)
     start = np.where(ts_side[:, None] >= 0, E_side[np.maximum(ts_side, 0)], 0.0)
     E, tri_passes, E_ts = solve(0, min(max_passes, TRIANGLE_PASSES), start)
-    with ThreadPoolExecutor(max_workers=workers) as pool:      # the groups' solves release the GIL
-        E_g = np.stack([e for e, _, _ in pool.map(lambda g: solve(1 + g, min(max_passes, GROUP_PASSES), E_ts),
-                                                   range(S))])
+    group_passes = min(max_passes, GROUP_PASSES)
+    with ThreadPoolExecutor(max_workers=workers) as pool:      # the solves release the GIL
+        E_g = np.stack([e for e, _, _ in pool.map(lambda g: solve(1 + g, group_passes, E_ts), range(S))])
+        E_f = np.stack([e for e, _, _ in pool.map(lambda g: solve_batch(g, group_passes, E_ts), range(S))])
     t_solve = time.perf_counter() - t0 - t_rays - t_read
     # per organ: incident (both sides) and absorbed, × its area
     n_org = el["n_organs"]
@@ -523,13 +531,18 @@ def field_step(kscene, field: LightField, settings: FieldSettings, seed: int = 1
     rows_ab = s0 + R + R0 + np.arange(n_org)
     tally = np.zeros((n_rows, B))
     tally[rows_inc], tally[rows_ab] = organ_rows(E)
-    T = np.zeros((S, n_rows, B))
-    for g in range(S):
-        T[g, rows_inc], T[g, rows_ab] = organ_rows(E_g[g])
-    # products such that Result's covariance is that of the mean of the S group estimates (batches = S)
+    # products such that Result's covariance (batches = S) is the rays' part plus the field's: each the
+    # covariance of the mean of S estimates (the groups of rays read against the whole field; the whole of the
+    # rays read against each batch of the field); what a group reading its own batch alone would add (the two
+    # spreads crossed) is not in the step's estimate, which reads every batch with every ray
     N = field.photons
-    dev = T - T.mean(axis=0)
-    prod = np.einsum("rb,rc->rbc", tally, tally) / N + np.einsum("srb,src->rbc", dev, dev) / (N * S)
+    prod = np.einsum("rb,rc->rbc", tally, tally) / N
+    for Es in (E_g, E_f):
+        T = np.zeros((S, n_rows, B))
+        for g in range(S):
+            T[g, rows_inc], T[g, rows_ab] = organ_rows(Es[g])
+        dev = T - T.mean(axis=0)
+        prod += np.einsum("srb,src->rbc", dev, dev) / (N * S)
     counters = np.zeros(N_COUNTERS, np.int64)
     result = Result(N, tally, prod, counters, time.perf_counter() - t0, workers, seed, kscene.n_sensors,
                     kscene.n_receivers, estimator="field", materials=[m.name for m in kscene.materials],
