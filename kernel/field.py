@@ -387,21 +387,23 @@ def cast_rays(scene, intersect, scratch, geom_offset, verts, normal, offset_rel,
 
 
 @njit(nogil=True, cache=True)
-def read_field(out, ray_tri, through, field, field_total, bins_per_cell, n_ts):
-    """What the rays read, per triangle side (2 t + 0 front, + 1 back; ``n_ts`` of them) of the region: returns
-    ``rays`` (1 + S, n_ts) how many rays left each (all, then each group g: the rays j ≡ g mod S of their side,
-    ``ray_tri`` order), ``direct`` (1 + 2S, n_ts, B) the sums of what those that left the region read there
-    (``bins_per_cell`` × the field × the ray's throughput): [0] all rays, the whole field; [1 + g] group g's rays,
-    the whole field (the rays' own spread); [1 + S + g] all rays, S × batch g of the field alone (the field's
-    own spread); and the links: for each ray whose path ended on a surface, its triangle side ``src``, the one it
-    ended on ``dst`` and its throughput ``weight`` (links, B), by group: group g's links are
+def read_field(out, ray_tri, through, field, field_total, bins_per_cell, ts_side, n_sides):
+    """What the rays read, per triangle side (2 t + 0 front, + 1 back) of the region: returns ``rays`` (1 + S,
+    n_ts) how many rays left each (all, then each group g: the rays j ≡ g mod S of their side, ``ray_tri``
+    order), ``direct`` (1 + S, n_ts, B) the sums of what those that left the region read there (``bins_per_cell``
+    × the whole field × the ray's throughput: all rays, then group g's); ``batch`` (S, sides, B) the same sums of
+    all the rays against S × batch g of the field alone, by element side (``ts_side``: each triangle side's; the
+    field's own spread); and the links: for each ray whose path ended on a surface, its triangle side ``src``, the
+    one it ended on ``dst`` and its throughput ``weight`` (links, B), by group: group g's links are
     ``start[g]:start[g + 1]``.  A ray's group is its index mod S (each side's rays start at a multiple of S:
     :func:`lpy_light.field.side_budget`)."""
     S = field.shape[0]
     n_b = field.shape[2]
     n = out.shape[0]
+    n_ts = ts_side.shape[0]
     rays = np.zeros((1 + S, n_ts))
-    direct = np.zeros((1 + 2 * S, n_ts, n_b))
+    direct = np.zeros((1 + S, n_ts, n_b))
+    batch = np.zeros((S, n_sides, n_b))
     met = np.empty(n, np.int64)
     n_met = 0
     for k in range(n):
@@ -419,9 +421,11 @@ def read_field(out, ray_tri, through, field, field_total, bins_per_cell, n_ts):
                 v = bins_per_cell * through[k, b] * field_total[j, b]
                 direct[0, ts, b] += v
                 direct[1 + g, ts, b] += v
-            for h in range(S):
-                for b in range(n_b):
-                    direct[1 + S + h, ts, b] += bins_per_cell * S * through[k, b] * field[h, j, b]
+            es = ts_side[ts]
+            if es >= 0:
+                for h in range(S):
+                    for b in range(n_b):
+                        batch[h, es, b] += bins_per_cell * S * through[k, b] * field[h, j, b]
     # the links by group (a counting sort): group g's are start[g]:start[g + 1]
     start = np.zeros(S + 1, np.int64)
     for i in range(n_met):
@@ -440,7 +444,7 @@ def read_field(out, ray_tri, through, field, field_total, bins_per_cell, n_ts):
         src[p], dst[p] = ray_tri[k], out[k]
         for b in range(n_b):
             weight[p, b] = through[k, b]
-    return rays, direct, src, dst, weight, start
+    return rays, direct, batch, src, dst, weight, start
 
 
 @njit(nogil=True, cache=True)

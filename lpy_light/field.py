@@ -484,9 +484,9 @@ def field_step(kscene, field: LightField, settings: FieldSettings, seed: int = 1
     t_rays = time.perf_counter() - t0
     S, B = field.batches, kscene.n_bands
     ts_side = np.ascontiguousarray(el["tri_side"].reshape(-1))
-    counts, direct, src, dst, link_w, link_start = read_field(out, ray_tri, through, field.field,
-                                                              field.field.sum(axis=0), field.bins_per_cell,
-                                                              len(ts_side))
+    counts, direct, batch, src, dst, link_w, link_start = read_field(out, ray_tri, through, field.field,
+                                                                     field.field.sum(axis=0), field.bins_per_cell,
+                                                                     ts_side, n_sides)
 
     t_read = time.perf_counter() - t0 - t_rays
 
@@ -495,14 +495,11 @@ def field_step(kscene, field: LightField, settings: FieldSettings, seed: int = 1
         return solve_passes(counts[c], direct[c], src[a:b], dst[a:b], link_w[a:b], ts_side, n_sides, refl, trans,
                             tol, passes, start)
 
-    def solve_batch(g, passes, start):          # all the rays, batch g of the field alone
-        return solve_passes(counts[0], direct[1 + S + g], src, dst, link_w, ts_side, n_sides, refl, trans, tol,
-                            passes, start)
 
     # the light between organs to convergence by element sides (their links summed: few), then a few passes by
     # triangle sides from there (what a ray reads where it ends is that triangle's light), then, from the full
-    # solve's light, the own passes of each σ group of rays (the whole field) and of each batch of the field
-    # (all the rays): the rays' spread and the field's, apart
+    # solve's light, the own passes of each σ group of rays (the whole field; by triangle sides) and of each
+    # batch of the field (all the rays; by element sides): the rays' spread and the field's, apart
     own = np.arange(n_sides, dtype=np.int64)
     s_rays, s_direct = side_sums(counts[0], direct[0], ts_side, n_sides)
     s_src, s_dst, s_w = side_links(src, dst, link_w, ts_side, n_sides)
@@ -513,7 +510,9 @@ def field_step(kscene, field: LightField, settings: FieldSettings, seed: int = 1
     group_passes = min(max_passes, GROUP_PASSES)
     with ThreadPoolExecutor(max_workers=workers) as pool:      # the solves release the GIL
         E_g = np.stack([e for e, _, _ in pool.map(lambda g: solve(1 + g, group_passes, E_ts), range(S))])
-        E_f = np.stack([e for e, _, _ in pool.map(lambda g: solve_batch(g, group_passes, E_ts), range(S))])
+        E_f = np.stack([e for e, _, _ in pool.map(
+            lambda g: solve_passes(s_rays, batch[g], s_src, s_dst, s_w, own, n_sides, refl, trans, tol, group_passes,
+                                   E_side), range(S))])
     t_solve = time.perf_counter() - t0 - t_rays - t_read
     # per organ: incident (both sides) and absorbed, × its area
     n_org = el["n_organs"]
