@@ -245,9 +245,9 @@ def stratified_directions(state, n, groups, share, lattice, cosine):
     (Cranley–Patterson) and dealt to the rays in a random order: stratified in the square, independent between
     groups.  Fills ``lattice`` (n, 2) and ``cosine`` (n,) bool."""
     m = n // groups
+    n_cos = int(round(share * m))
     order = np.empty(m, np.int64)
     for g in range(groups):
-        n_cos = int(round(share * m))
         for i in range(m):
             order[i] = i
         for i in range(m - 1, 0, -1):                      # Fisher–Yates
@@ -258,7 +258,7 @@ def stratified_directions(state, n, groups, share, lattice, cosine):
             j = g + groups * i
             rank = order[i]
             if rank < n_cos:
-                x = (rank + s1 * 1.0) / n_cos
+                x = (rank + s1) / n_cos
                 y = rank * _LATTICE + s2
                 cosine[j] = True
             else:
@@ -310,7 +310,8 @@ def cast_rays(scene, intersect, scratch, geom_offset, verts, normal, offset_rel,
         if lattice.shape[0] < n:
             lattice = np.empty((n, 2))
             cosine = np.empty(n, np.bool_)
-        stratified_directions(state, n, groups, cosine_share if guide_of[s] >= 0 else 1.0, lattice, cosine)
+        gi = guide_of[s]
+        stratified_directions(state, n, groups, cosine_share if gi >= 0 else 1.0, lattice, cosine)
         for j in range(n):
             k = ray_start[s] + j
             u = (j + uniform(state)) / n
@@ -324,7 +325,6 @@ def cast_rays(scene, intersect, scratch, geom_offset, verts, normal, offset_rel,
             py = a[0, 1] + u1 * (a[1, 1] - a[0, 1]) + u2 * (a[2, 1] - a[0, 1])
             pz = a[0, 2] + u1 * (a[1, 2] - a[0, 2]) + u2 * (a[2, 2] - a[0, 2])
             nx, ny, nz = sign * normal[t, 0], sign * normal[t, 1], sign * normal[t, 2]
-            gi = guide_of[s]
             dx, dy, dz, w = draw_direction(guide, gi, cosine_share, n_phi, nx, ny, nz, cosine[j], lattice[j, 0],
                                            lattice[j, 1], uniform(state))
             for b in range(n_b):

@@ -412,15 +412,14 @@ GUIDE_NORMALS = 8
 
 
 def side_guides(el, field: LightField, rays, settings: FieldSettings, seed: int):
-    """The direction guides of the sides that cast ``settings.rays``-many rays or more and of the chamber pieces
-    (:func:`lpy_light.kernel.field.guide_tables`), from the field's light summed over its bands, each band as a
-    share of its total; returns (guide (G, bins), guide_of (sides,) −1: cosine alone)."""
+    """The direction guides of every side with triangles (:func:`lpy_light.kernel.field.guide_tables`; ``rays``
+    (sides,) only gives their number), from the field's light summed over its bands, each band as a share of its
+    total; returns (guide (G, bins), guide_of (sides,) −1: cosine alone, where the guide sees no light)."""
     n_dirs = settings.guide_z * settings.guide_phi
     n_sides = len(rays)
     guide_of = np.full(n_sides, -1, np.int64)
     if n_dirs == 0 or settings.cosine_share >= 1.0:
         return np.zeros((1, 1)), guide_of
-    n_org = el["n_organs"]
     sides = np.flatnonzero(np.repeat(np.diff(el["tri_start"]) > 0, 2))
     if len(sides) == 0:
         return np.zeros((1, 1)), guide_of
@@ -494,7 +493,6 @@ def field_step(kscene, field: LightField, settings: FieldSettings, seed: int = 1
         a, b = (0, len(src)) if c == 0 else (link_start[c - 1], link_start[c])
         return solve_passes(counts[c], direct[c], src[a:b], dst[a:b], link_w[a:b], ts_side, n_sides, refl, trans,
                             tol, passes, start)
-
 
     # the light between organs to convergence by element sides (their links summed: few), then a few passes by
     # triangle sides from there (what a ray reads where it ends is that triangle's light), then, from the full
