@@ -271,14 +271,14 @@ def stratified_directions(state, n, groups, share, lattice, cosine):
 
 
 @njit(nogil=True, cache=True)
-def cast_rays(scene, intersect, scratch, geom_offset, verts, normal, offset_rel, tri_side, tri_start, tris,
-              tri_cdf, side_rays, ray_start, first, last, seed, box, grid, face0, rings, sectors, reflect, transmit,
-              bounces, guide, guide_of, cosine_share, n_phi, groups, out, ray_tri, through):
-    """Rays from the element sides ``first .. last − 1``: ``side_rays[s]`` from side s, written at
-    ``out[ray_start[s]:]``: ≥ 0, the triangle side (2 t + 0 front, + 1 back, t a region triangle) where the ray's
-    path ends on a surface, whose outgoing light it reads; < 0, −1 − the field's bin it left the region by
-    (:data:`NOTHING`: it reads nothing); the triangle side it left from into ``ray_tri``, and its path's
-    throughput per band into ``through`` (n, B).
+def cast_rays(region, sides, bins, guides, first, last, seed, bounces, groups, scratch, ends):
+    """Rays from the element sides ``first .. last − 1`` of the ``region`` (:class:`~kernel.records.Region`):
+    ``sides.rays[s]`` from side s (:class:`~kernel.records.RaySides`), written at ``ends.out[ray_start[s]:]``
+    (:class:`~kernel.records.RayEnds`): ≥ 0, the triangle side (2 t + 0 front, + 1 back, t a region triangle)
+    where the ray's path ends on a surface, whose outgoing light it reads; < 0, −1 − the field's bin (``bins``:
+    :class:`~kernel.records.FieldBins`) it left the region by (:data:`NOTHING`: it reads nothing); the triangle
+    side it left from into ``ray_tri``, and its path's throughput per band into ``through`` (n, B).  ``scratch``:
+    this thread's Embree block (:func:`kernel.embree.new_scratch`'s address).
 
     Side s's points are drawn on its element's (e = s // 2) triangles ``tris[tri_start[e]:tri_start[e + 1]]`` by
     area (``tri_cdf``: their cumulative share, ending at 1), stratified (ray j in [j, j + 1) / n of the cumulative
@@ -294,6 +294,11 @@ def cast_rays(scene, intersect, scratch, geom_offset, verts, normal, offset_rel,
     sends.  Side s's rays use the random stream (seed, s): the same on any number of threads.  ``tri_side``
     (T, 2): the element side a ray meets on triangle t from its front (column 0: the ray against the normal) and
     from its back (column 1); −1, not met from there (one-sided chamber pieces are skipped by Embree itself)."""
+    scene, intersect, geom_offset, verts, normal, offset_rel, tri_side = region
+    tri_start, tris, tri_cdf, side_rays, ray_start, reflect, transmit, guide_of = sides
+    box, grid, face0, rings, sectors = bins
+    guide, cosine_share, n_phi = guides
+    out, ray_tri, through = ends
     state = np.zeros(1, np.uint64)
     rh = scratch + RAYHIT
     args = scratch + ARGS

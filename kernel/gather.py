@@ -82,11 +82,11 @@ def cluster_cdf(center, area, radius, normal, cl_pos, cl_normal, cl_up, cl_down,
 
 
 @njit(nogil=True, no_cfunc_wrapper=True, cache=True, _nrt=False)
-def gather_batch(scene, nee, organs, batch, store, cdf, targets, samples, zone_samples, image_draws, seed, tally,
-                 starts, photon, stats):
-    """One batch's gather: ``samples[j]`` draws for each target ``targets[j]`` (index into ``nee.targets``), from the
-    stored vertices of this batch; deposits added to ``tally`` (rows, B); each draw that reaches its target
-    written to ``starts`` (START_W + B columns) to continue from there.  Returns the number of starts.
+def gather_batch(scene, nee, organs, batch, store, cdf, draws, out, photon, stats):
+    """One batch's gather (``draws``: :class:`~kernel.records.GatherDraws`): ``samples[j]`` draws for each target
+    ``targets[j]`` (index into ``nee.targets``), from the stored vertices of this batch; deposits added to
+    ``out.tally`` (rows, B); each draw that reaches its target written to ``out.starts`` (START_W + B columns) to
+    continue from there (:class:`~kernel.records.GatherOut`).  Returns the number of starts.
 
     ``store`` = (vpl (n, VPL_W + B), order (n,): the vertices by batch and cluster, cell_start (S, K + 1): their
     range per batch and cluster in ``order``, cell_cum (n,): each one's cumulative mean weight within its cell,
@@ -103,6 +103,8 @@ def gather_batch(scene, nee, organs, batch, store, cdf, targets, samples, zone_s
     leaf and stem beside it send it, as every vertex's organ zone events estimate it in the full kernel; a path
     that reaches the zone straight from a stored vertex skips it then, as there (:func:`kernel.nee.zone_served`)."""
     geo, mat, emitters, sens = scene
+    targets, samples, zone_samples, image_draws, seed = draws
+    tally, starts = out
     tgt = nee.targets
     vpl, order, cell_start, cell_cum, cell_w, mean_w, batch_cum = store
     state, out_k, out_w, leg = photon.state, photon.out_k, photon.out_w, photon.leg

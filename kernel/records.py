@@ -275,6 +275,65 @@ Vertex = namedtuple("Vertex", [
     "tri",           # its triangle, -1 on a lamp
 ])
 
+# the gather of the ``reuse`` estimator (kernel.gather.gather_batch): what one batch draws, and where it writes
+GatherDraws = namedtuple("GatherDraws", [
+    "targets",       # (J,) int64: the targets gathered (indices into NextEvents.targets)
+    "samples",       # (J,) int64: next events from the batch's stored vertices to each
+    "zone_samples",  # (J,) int64: two-step events through each one's organ zone (buds; ignored elsewhere)
+    "image_draws",   # int64: next events through a mirror from the batch's vertices
+    "seed",          # int64: target j's draws use the random stream (seed, batch · T + j)
+])
+
+GatherOut = namedtuple("GatherOut", [
+    "tally",         # (K, B) float64: the deposits, added to
+    "starts",        # (n, START_W + B) float64: each draw that reached its target, to continue from there
+])
+
+# a step of the ``field`` estimator (kernel.field.cast_rays).  Sizes: T region triangles, E region elements (an
+# organ, a chamber piece inside the region) with 2E sides, n rays, B bands.
+Region = namedtuple("Region", [
+    "scene",         # int: the region's Embree scene handle (the plant and the chamber's pieces inside the box)
+    "intersect",     # int: address of rtcIntersect1
+    "geom_offset",   # (4,) int64: region triangle = Embree primID + geom_offset[geomID]
+    "verts",         # (T, 3, 3) float64: vertices
+    "normal",        # (T, 3) float64: unit right-hand-rule normals
+    "offset_rel",    # float: a ray starts offset_rel · (max |v_i| + |o|) off the triangle it leaves (Geometry)
+    "tri_side",      # (T, 2) int64: the element side a ray meets on each triangle from its front, from its back;
+                     # −1: not met from there
+])
+
+RaySides = namedtuple("RaySides", [
+    "tri_start",     # (E + 1,) int64: element e's triangles are tris[tri_start[e] : tri_start[e + 1]]
+    "tris",          # int64: the elements' triangles, and
+    "tri_cdf",       # float64: their cumulative areas within each element (ending at 1)
+    "rays",          # (2E,) int64: rays from each side
+    "ray_start",     # (2E + 1,) int64: side s's rays are written at ray_start[s]:
+    "reflect",       # (2E, B) float64: each side's reflectance, and
+    "transmit",      # (2E, B) float64: transmittance (a path that bounces on there)
+    "guide_of",      # (2E,) int64: each side's row of the guide, or −1 (cosine-weighted rays only)
+])
+
+FieldBins = namedtuple("FieldBins", [
+    "box",           # (6,) float64: the region, lo (3) and hi (3)
+    "grid",          # (6, 2) int64: cells along each face's two axes
+    "face0",         # (6,) int64: each face's first cell
+    "rings",         # int: direction rings (equal projected solid angle)
+    "sectors",       # int: direction sectors
+])
+
+Guide = namedtuple("Guide", [
+    "table",         # (G, n_z · n_phi) float64: each guided side's cumulative weights over the sphere's bins
+    "cosine_share",  # float: share of a guided side's rays drawn cosine-weighted
+    "n_phi",         # int: the sphere's sectors (kernel.field.sphere_bin)
+])
+
+RayEnds = namedtuple("RayEnds", [
+    "out",           # (n,) int64: ≥ 0, the triangle side a ray's path ended on; < 0, −1 − the field's bin it
+                     # left the region by (kernel.field.NOTHING: it reads nothing)
+    "ray_tri",       # (n,) int64: the triangle side it left from
+    "through",       # (n, B) float64: its path's throughput per band
+])
+
 
 def i32(a):
     return np.ascontiguousarray(a, dtype=np.int32)

@@ -50,7 +50,7 @@ from .kernel import embree
 from .kernel.field import add_crossings, bin_crossings, cast_rays, guide_tables, read_field, side_links, side_sums, \
     solve_passes
 from .kernel.records import ABSORB, DIFFUSE_R, DIFFUSE_T, REPLAY_STORE, SPECULAR_R, SPECULAR_T, START_W, VPL_W, \
-    Replay, new_tallies
+    FieldBins, Guide, RayEnds, RaySides, Region, Replay, new_tallies
 from .kernel.tallies import N_COUNTERS
 from .kernel.trace import trace_chunk
 from .reuse import chamber_key, inside
@@ -470,13 +470,16 @@ def field_step(kscene, field: LightField, settings: FieldSettings, seed: int = 1
     cuts = np.searchsorted(ray_start, np.linspace(0, ray_start[-1], n_parts + 1)[1:-1])
     bounds = np.unique(np.concatenate([[0], np.clip(cuts, 0, n_sides), [n_sides]]))
 
+    geometry = Region(region.handle, intersect, geom_offset, verts, el["normal"], offset_rel, el["tri_side"])
+    sides = RaySides(el["tri_start"], el["tris"], el["tri_cdf"], rays, ray_start, refl, trans, guide_of)
+    bins = FieldBins(field.box, field.grid, field.face0, int(field.rings), int(field.sectors))
+    guides = Guide(guide, float(settings.cosine_share), int(settings.guide_phi))
+    ends = RayEnds(out, ray_tri, through)
+
     def part(i):
         scratch = embree.new_scratch()
-        cast_rays(region.handle, intersect, scratch.ctypes.data, geom_offset, verts, el["normal"], offset_rel,
-                  el["tri_side"], el["tri_start"], el["tris"], el["tri_cdf"], rays, ray_start,
-                  int(bounds[i]), int(bounds[i + 1]), int(seed), field.box, field.grid, field.face0, field.rings,
-                  field.sectors, refl, trans, int(settings.bounces), guide, guide_of, float(settings.cosine_share),
-                  int(settings.guide_phi), int(field.batches), out, ray_tri, through)
+        cast_rays(geometry, sides, bins, guides, int(bounds[i]), int(bounds[i + 1]), int(seed), int(settings.bounces),
+                  int(field.batches), scratch.ctypes.data, ends)
 
     with ThreadPoolExecutor(max_workers=workers) as pool:
         list(pool.map(part, range(len(bounds) - 1)))

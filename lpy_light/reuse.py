@@ -37,7 +37,7 @@ from .kernel import embree
 from .kernel.gather import cluster_cdf, gather_batch
 from .kernel.nee import NEAR
 from .kernel.records import (DIFFUSE_R, DIFFUSE_T, REPLAY_CONTINUE, REPLAY_STORE, START_W, V_ISOTROPIC, V_SURFACE,
-                             VPL_W, Replay, new_tallies)
+                             VPL_W, GatherDraws, GatherOut, Replay, new_tallies)
 from .kernel.tallies import N_COUNTERS
 from .kernel.trace import trace_chunk, work_arrays
 
@@ -367,8 +367,9 @@ def gather_step(kscene, store: ChamberStore, samples: int = 64, seed: int = 1, t
         photon, _, _ = work_arrays(scene, nee, scratch.ctypes.data, tallies)
         tally = np.zeros((n_rows, n_bands))
         starts = np.empty((int(per_target.sum()), START_W + n_bands))
-        n_s = gather_batch(scene, nee, nee.organs, np.int64(b), store.cells, cdf, targets, per_target, per_zone,
-                           np.int64(image_draws), np.int64(seed), tally, starts, photon, stats)
+        draws = GatherDraws(targets, per_target, per_zone, np.int64(image_draws), np.int64(seed))
+        n_s = gather_batch(scene, nee, nee.organs, np.int64(b), store.cells, cdf, draws, GatherOut(tally, starts),
+                           photon, stats)
         if "gather" not in parts:
             tally[:] = 0.0
         if "paths" not in parts:

@@ -78,3 +78,25 @@ def test_no_import_cycle_in_the_package():
 def test_each_module_imports_alone(module):
     code = subprocess.run([sys.executable, "-c", "import %s" % module], capture_output=True, text=True)
     assert code.returncode == 0, code.stderr
+
+
+KERNEL = Path(__file__).resolve().parents[1] / "kernel"
+MAX_PARAMETERS = 12
+
+
+def parameters(fn: ast.FunctionDef) -> int:
+    a = fn.args
+    return len(a.posonlyargs) + len(a.args) + len(a.kwonlyargs) + bool(a.vararg) + bool(a.kwarg)
+
+
+def test_parameters_counts_every_kind():
+    fn = ast.parse("def f(a, /, b, *c, d, **e): pass").body[0]
+    assert parameters(fn) == 5
+
+
+@pytest.mark.parametrize("path", sorted(KERNEL.glob("*.py")), ids=lambda p: p.name)
+def test_kernel_functions_take_records_not_dozens_of_arrays(path):
+    """A kernel function reads the few records it needs (kernel/records.py): at most 12 parameters."""
+    long = ["%s (%d)" % (n.name, parameters(n)) for n in ast.walk(ast.parse(path.read_text(encoding="utf-8")))
+            if isinstance(n, ast.FunctionDef) and parameters(n) > MAX_PARAMETERS]
+    assert long == []
