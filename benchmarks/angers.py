@@ -1,13 +1,13 @@
 """The Angers chamber against SEC2: the four built-in scenes at 1e6 and 1e7 photons (1e8 with --full).
 
 For each scene (angers, angers-onlylamps, angers-sansmakrolon, angers-sanstable) runs the kernel and
-compares its 240 sensors with the SEC2 file that belongs to the scene (lpy_light.validation.SEC2_SCENES;
+compares its 240 sensors with the SEC2 file that belongs to the scene (lpy_light.report.validation.SEC2_SCENES;
 the full chamber also with the photon-mapping engine's run).  Prints one row per run: seconds,
 photons/s, share of sensors within 4σ, mean relative bias ± σ, rms relative difference and the rms
 that noise alone explains (σ combines ours and SEC2's Poisson σ; ours is scaled by N_SEC2 / N_ours), and
 the rms of our own relative σ per sensor (to compare estimators: time x σ² is their cost).
 
-``--ablations`` runs the physics variants of lpy_light.validation.VARIANTS instead (default 1e7
+``--ablations`` runs the physics variants of lpy_light.report.validation.VARIANTS instead (default 1e7
 photons each) on the scenes where each one matters.
 
     .venv/bin/python benchmarks/angers.py [--full] [--estimator nee|weighted|analog] [--out runs/angers.csv]
@@ -20,8 +20,9 @@ from pathlib import Path
 
 import numpy as np
 
-from lpy_light import simulate, validation
-from lpy_light.estimators import DEFAULT_ESTIMATOR, ESTIMATORS
+from lpy_light.run import simulate
+from lpy_light.report import validation
+from lpy_light.estimators.registry import DEFAULT_ESTIMATOR, ESTIMATORS
 
 FIELDS = ["scene", "variant", "estimator", "photons", "seconds", "photons_per_s", "reference", "within_4sigma",
           "bias", "bias_std", "rms", "rms_noise", "max_abs_z", "rms_ours"]
@@ -79,7 +80,7 @@ def main(argv=None):
     ap.add_argument("--full", action="store_true", help="add 1e8 photons (1-3 min per scene on 2 threads)")
     ap.add_argument("--estimator", choices=tuple(ESTIMATORS), default=DEFAULT_ESTIMATOR,
                     help="nee (default: fastest to a given precision on these sensors), weighted or analog")
-    ap.add_argument("--ablations", action="store_true", help="run the physics variants (lpy_light.validation.VARIANTS)")
+    ap.add_argument("--ablations", action="store_true", help="run the physics variants (lpy_light.report.validation.VARIANTS)")
     ap.add_argument("--variants", nargs="+", default=None, help="with --ablations: only these variants")
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--threads", type=int, default=2)

@@ -34,9 +34,9 @@ from pathlib import Path
 
 import numpy as np
 
-from lpy_light import simulate
-from lpy_light.scene import resolve_scene
-from lpy_light.scene import load_scene
+from lpy_light.run import simulate
+from lpy_light.chamber.scene import resolve_scene
+from lpy_light.chamber.scene import load_scene
 
 SCENES = {"1 band": "angers", "12 bands": "angers-12bands"}
 

@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from lpy_light.light import LightModel
+from lpy_light.plant.light import LightModel
 
 import rose as bush
 

@@ -18,12 +18,13 @@ from pathlib import Path
 import numpy as np
 from numba import njit
 
-from lpy_light import reference, simulate, validation
+from lpy_light.report import reference, validation
+from lpy_light.run import simulate
 from lpy_light.kernel.embree import (ARGS, CAND_COUNT, DIR, GEOM_ID, INVALID_ID, MASK, ORG, PRIM_ID, RAYHIT, TFAR,
                                      TNEAR, new_scratch)
 from lpy_light.kernel.ptr import call_ptr3, load_u32, store_f32, store_i64, store_u32
-from lpy_light.scene import load_scene
-from lpy_light.sensors import Sensors
+from lpy_light.chamber.scene import load_scene
+from lpy_light.chamber.sensors import Sensors
 
 STRIPS = {"G": ((0, 2400), (1800, 1840)), "D": ((0, 2400), (0, 40)), "AV": ((2360, 2400), (0, 1840)),
           "AR": ((0, 40), (0, 1840))}

@@ -27,9 +27,9 @@ from pathlib import Path
 
 import numpy as np
 
-from lpy_light import simulate
-from lpy_light.scene import resolve_scene
-from lpy_light.scene import load_scene
+from lpy_light.run import simulate
+from lpy_light.chamber.scene import resolve_scene
+from lpy_light.chamber.scene import load_scene
 
 sys.path.insert(0, str(Path(__file__).parent))
 
@@ -69,7 +69,7 @@ def angers_case(threads, quick, seed=7):
 
 def rose_case(threads, quick, seed=7):
     from rose import LEAF_MATERIAL, rose
-    from lpy_light.light import LightModel
+    from lpy_light.plant.light import LightModel
 
     plant = rose(4, 4)
     models = {}

@@ -32,7 +32,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from reuse import bias, lights_of, plant_model, precision, table  # noqa: E402
 
-from lpy_light.field import FieldSettings, build_field, field_step  # noqa: E402
+from lpy_light.estimators.field import FieldSettings, build_field, field_step  # noqa: E402
 
 
 def within(tab, ref):

@@ -28,8 +28,8 @@ import time
 
 import numpy as np
 
-from lpy_light import simulate
-from lpy_light.scene import load_scene, resolve_scene
+from lpy_light.run import simulate
+from lpy_light.chamber.scene import load_scene, resolve_scene
 
 
 def main():

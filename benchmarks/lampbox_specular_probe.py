@@ -4,8 +4,8 @@
 """
 import argparse
 
-from lpy_light import validation as V
-from lpy_light.materials import DIFFUSE_R, SPECULAR_R
+from lpy_light.report import validation as V
+from lpy_light.chamber.materials import DIFFUSE_R, SPECULAR_R
 
 
 def mirrors(frac):

@@ -18,8 +18,8 @@ import itertools
 
 import numpy as np
 
-from lpy_light import reference, validation as V
-from lpy_light.materials import ABSORB, DIFFUSE_R, DIFFUSE_T, SPECULAR_R, SPECULAR_T
+from lpy_light.report import reference, validation as V
+from lpy_light.chamber.materials import ABSORB, DIFFUSE_R, DIFFUSE_T, SPECULAR_R, SPECULAR_T
 
 SCENES = ["angers", "angers-sansmakrolon", "angers-sanstable"]
 #: the materials of testChamber.rad that cover a surface (those with none change nothing)

@@ -16,7 +16,8 @@ import time
 
 import numpy as np
 
-from lpy_light import simulate, validation
+from lpy_light.run import simulate
+from lpy_light.report import validation
 from lpy_light.kernel.targets import near_discs
 
 

@@ -37,8 +37,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from lpy_light import simulate  # noqa: E402
-from lpy_light.scene import load_scene  # noqa: E402
+from lpy_light.run import simulate  # noqa: E402
+from lpy_light.chamber.scene import load_scene  # noqa: E402
 
 ANGERS = ROOT / "lpy_light" / "data" / "angers-chamber"
 
@@ -46,7 +46,7 @@ ANGERS = ROOT / "lpy_light" / "data" / "angers-chamber"
 def missing_walls_rad() -> str:
     """Radiance text of the x = 50 mm copies of ``refcaissonY0a``/``refcaissonY0n`` (the first of each name in
     testChamber.rad), with their material, which the OBJ lost."""
-    from lpy_light.radiance import read_rad
+    from lpy_light.chamber.radiance import read_rad
     prims = read_rad(ANGERS / "geometry" / "testChamber.rad")
     material = next(p for p in prims if p.identifier == "MiroirCaissonLampes")
     walls = [next(p for p in prims if p.identifier == name) for name in ("refcaissonY0a", "refcaissonY0n")]

@@ -29,9 +29,10 @@ from pathlib import Path
 
 import numpy as np
 
-from lpy_light import reference, simulate, validation
+from lpy_light.report import reference, validation
+from lpy_light.run import simulate
 from lpy_light.kernel.embree import EmbreeScene, intersect1_address, new_scratch
-from lpy_light.scene import load_scene
+from lpy_light.chamber.scene import load_scene
 
 import coplanar_tie  # noqa: E402  (beside this file)
 
@@ -197,7 +198,7 @@ def main(argv=None):
     args = ap.parse_args(argv)
     rad = validation.ANGERS / "geometry" / "testChamber.rad"
     tris, names = pm_triangles(rad)
-    from lpy_light.radiance import read_rad
+    from lpy_light.chamber.radiance import read_rad
     polygons = [p for p in read_rad(rad) if p.type == "polygon"]
     lost = [p for p in polygons if not any(np.array_equal(np.reshape(p.reals, (-1, 3))[:3], t[:3]) for t in
                                            tris[names == p.identifier])]

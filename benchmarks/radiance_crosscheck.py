@@ -89,8 +89,8 @@ def panel_flux() -> float:
 
 def ours(toml: Path, photons: int, seed: int = 1, threads=None, estimator: str = "nee"):
     """(E, σ_E, seconds): irradiance per sensor (Radiance's units) from lpy-light."""
-    from lpy_light import simulate
-    from lpy_light.scene import load_scene
+    from lpy_light.run import simulate
+    from lpy_light.chamber.scene import load_scene
 
     chamber = load_scene(toml)
     ks = simulate.KernelScene(chamber, estimator)

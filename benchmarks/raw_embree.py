@@ -40,13 +40,13 @@ from pathlib import Path
 import numpy as np
 from numba import njit
 
-from lpy_light import simulate
-from lpy_light.scene import resolve_scene
+from lpy_light.run import simulate
+from lpy_light.chamber.scene import resolve_scene
 from lpy_light.kernel import embree
 from lpy_light.kernel.embree import (ARGS, CAND_COUNT, DIR, GEOM_ID, INVALID_ID, MASK, ORG, PRIM_ID, RAYHIT,
                                      TFAR, TNEAR)
 from lpy_light.kernel.ptr import call_ptr3, load_f32, load_u32, store_f32, store_i64, store_u32
-from lpy_light.scene import load_scene
+from lpy_light.chamber.scene import load_scene
 
 _TFAR_MAX = 3.0e38
 
@@ -208,7 +208,7 @@ def _kernel_scene(scene, plant):
         chamber = load_scene(resolve_scene(scene))
         ks = simulate.KernelScene(chamber, "weighted")
         return ks, chamber.triangles[ks.order]
-    from lpy_light.light import LightModel
+    from lpy_light.plant.light import LightModel
     from rose import LEAF_MATERIAL, rose
 
     model = LightModel(scene, plant_unit="cm", estimator="weighted", lamp_flux=[1.0],

@@ -34,9 +34,9 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from rose import LEAF_MATERIAL, rose  # noqa: E402
 
-from lpy_light.light import LightModel  # noqa: E402
-from lpy_light.organ_light import organ_lights  # noqa: E402
-from lpy_light.reuse import ReuseSettings, build_store, gather_step, plant_box  # noqa: E402
+from lpy_light.plant.light import LightModel  # noqa: E402
+from lpy_light.plant.organ_light import organ_lights  # noqa: E402
+from lpy_light.estimators.reuse import ReuseSettings, build_store, gather_step, plant_box  # noqa: E402
 
 ORGANS = {"Leaf": LEAF_MATERIAL, "Internode": LEAF_MATERIAL[0], "Bud": LEAF_MATERIAL[0]}
 

@@ -3,7 +3,7 @@
 The 516-organ rose of ``benchmarks/rose.py`` (its last stage) in the Angers chamber, lit as that benchmark
 lights it (``angers-12bands``, next events aimed at leaves and buds), at each photon budget for each seed.
 Per organ, R:FR as reported (without the first-order bias of a ratio of two estimates,
-:mod:`lpy_light.ratios`) and the plain ratio of the same run's two ppfd (red / far red: what
+:mod:`lpy_light.chamber.ratios`) and the plain ratio of the same run's two ppfd (red / far red: what
 ``ratios.uncorrected()`` reports, and what R:FR was before issue 45).  A seed lights every budget with the
 same photon streams (chunk c is the same photons in every run), so budgets are compared organ by organ,
 seed by seed.  Printed: per budget and kind of organ, the mean R:FR over the organs, the organs whose R:FR
@@ -37,8 +37,8 @@ from pathlib import Path
 
 import numpy as np
 
-from lpy_light import ratios
-from lpy_light.light import LightModel
+from lpy_light.chamber import ratios
+from lpy_light.plant.light import LightModel
 from rose import LEAF_MATERIAL, rose
 
 KINDS = ("Bud", "Leaf")

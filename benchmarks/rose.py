@@ -22,8 +22,8 @@ import time
 import numpy as np
 import trimesh
 
-from lpy_light.estimators import DEFAULT_ESTIMATOR, ESTIMATORS
-from lpy_light.light import LightModel
+from lpy_light.estimators.registry import DEFAULT_ESTIMATOR, ESTIMATORS
+from lpy_light.plant.light import LightModel
 
 LEAF_MATERIAL = ("FeuilleVieille_Sup", "FeuilleVieille_Inf")
 
@@ -112,7 +112,7 @@ def lpy_growth(args):
 
     from openalea.lpy import Lsystem
 
-    from lpy_light import light as lightmod
+    from lpy_light.plant import light as lightmod
 
     model_path = Path(args.model) if args.model else Path(__file__).parent.parent / "lsystems" / "rose.lpy"
     t0 = time.perf_counter()
@@ -207,7 +207,7 @@ def main():
     t = time.perf_counter()
     model.organs_from_meshes({k: (m, mat, mod) for k, (m, mat, mod) in plant.items()})
     warm = time.perf_counter() - t
-    from lpy_light import simulate
+    from lpy_light.run import simulate
     t = time.perf_counter()
     simulate.KernelScene(model.chamber, args.estimator)
     chamber_build = time.perf_counter() - t

@@ -20,8 +20,8 @@ from pathlib import Path
 
 import numpy as np
 
-from lpy_light.light import LightModel
-from lpy_light.organs import Organ
+from lpy_light.plant.light import LightModel
+from lpy_light.plant.organs import Organ
 
 ROSE = Path(__file__).resolve().parents[1] / "lsystems" / "rose.lpy"
 ORGANS = {"Leaf": ("FeuilleVieille_Sup", "FeuilleVieille_Inf"), "Bud": {"reflectance": "FeuilleVieille_Sup"},
@@ -34,7 +34,7 @@ def rose_organs(steps, grown=False):
     """The rose's organs at ``steps`` (chamber units)."""
     from openalea.lpy import Lsystem
 
-    from lpy_light import lpy as adapter
+    from lpy_light.plant import lpy as adapter
     externs = {"STEPS": steps, "PHOTONS": 2e5, "PRECISION": 0}
     if not grown:
         externs.update(PAR_MIN=0.0, RFR_MIN=0.0)

@@ -16,7 +16,7 @@ import sys
 
 import numpy as np
 
-from lpy_light import reference, validation
+from lpy_light.report import reference, validation
 
 FIELDS = ["scene", "variant", "photons", "reference", "plane", "axis", "change", "change_std", "rms_rows",
           "max_row", "bias", "rows", "rows_std", "positions"]

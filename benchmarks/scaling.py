@@ -34,9 +34,9 @@ from pathlib import Path
 
 import numpy as np
 
-from lpy_light import cluster, simulate, sweep
+from lpy_light.run import cluster, simulate, sweep
 from lpy_light.cli import resolve_scene
-from lpy_light.scene import load_scene
+from lpy_light.chamber.scene import load_scene
 
 ROOT = Path(__file__).resolve().parents[1]
 CHUNK = simulate.CHUNK

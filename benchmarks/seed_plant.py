@@ -41,10 +41,11 @@ from pathlib import Path
 
 import numpy as np
 
-from lpy_light import reference, simulate
-from lpy_light.light import LightModel
-from lpy_light.organs import organ_from_mesh
-from lpy_light.scene import load_scene, resolve_scene
+from lpy_light.report import reference
+from lpy_light.run import simulate
+from lpy_light.plant.light import LightModel
+from lpy_light.plant.organs import organ_from_mesh
+from lpy_light.chamber.scene import load_scene, resolve_scene
 
 ROOT = Path(__file__).resolve().parents[1]
 MODEL = ROOT / "lsystems" / "rose-simple4.lpy"
@@ -103,7 +104,7 @@ def derive(plant: int):
     import openalea.plantgl.all as pgl
     from openalea.lpy import Lsystem
 
-    from lpy_light.lpy import _points
+    from lpy_light.plant.lpy import _points
 
     random.seed(plant)
     lsystem = Lsystem(str(MODEL))

@@ -12,9 +12,9 @@ import time
 
 import numpy as np
 
-from lpy_light import simulate
+from lpy_light.run import simulate
 from lpy_light.kernel.tallies import C_RAYS
-from lpy_light.light import LightModel
+from lpy_light.plant.light import LightModel
 from rose import LEAF_MATERIAL, rose
 
 

@@ -9,7 +9,7 @@ and γ (:func:`kernel.nee.next_event`) — unbiased, and a pick then carries a s
 
 Every photon then deposits on every sensor: the products between bands are taken per batch of
 ``Control.batch`` photons instead of per photon (:func:`control_products`, σ from batch means:
-:func:`lpy_light.simulate.effective_samples`).
+:func:`lpy_light.estimators.result.effective_samples`).
 """
 import numpy as np
 
@@ -126,7 +126,7 @@ def control_products(size, cvw):
     over batches instead, Q = Σ_j S_j S_jᵀ / m_j satisfies E[Q − T Tᵀ / N] = (n_b − 1) Σ (Σ the covariance
     of one photon, T the total of N photons in n_b batches of m_j photons), so ``Result`` estimates
     the covariance of T as N / (n_b − 1) · (Q − T Tᵀ / N): the per-photon formula with n_b − 1 in place
-    of N − 1 (:func:`lpy_light.simulate.effective_samples`)."""
+    of N − 1 (:func:`lpy_light.estimators.result.effective_samples`)."""
     cv_acc, cv_tally, cv_sq = cvw.batch, cvw.tally, cvw.sq
     n_bands, n = cv_acc.shape[0], cv_acc.shape[1]
     inv = 1.0 / size

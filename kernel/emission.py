@@ -1,14 +1,14 @@
 """Emission: where a photon leaves its lamp and in which direction.
 
 Photons are shared between emitter elements in proportion to their power (``Emitters.cdf``), stratified
-over a chunk.  Each lamp kind (``EMIT_*``, defined here, once: :mod:`lpy_light.emitters` builds elements of
+over a chunk.  Each lamp kind (``EMIT_*``, defined here, once: :mod:`lpy_light.chamber.emitters` builds elements of
 these kinds) is one sampling function: line and point lamps (SEC2's tubes and bulbs) emit isotropically from
 their axis or centre; polygons, cylinders and spheres (``lamps = "lambertian"``) by a cosine law from their
 surface.  :func:`emit` chooses the function by the element's kind.  Positions in scene units; the returned
 origin is already offset off an emitting surface by its round-off scale.
 
 Adding a lamp kind: its ``EMIT_*`` number and sampling function here, one line in :func:`emit`, and its
-reading in :mod:`lpy_light.emitters` (``docs/architecture.md``).
+reading in :mod:`lpy_light.chamber.emitters` (``docs/architecture.md``).
 """
 import math
 

@@ -401,7 +401,7 @@ def read_field(out, ray_tri, through, field, field_total, bins_per_cell, ts_side
     field's own spread); and the links: for each ray whose path ended on a surface, its triangle side ``src``, the
     one it ended on ``dst`` and its throughput ``weight`` (links, B), by group: group g's links are
     ``start[g]:start[g + 1]``.  A ray's group is its index mod S (each side's rays start at a multiple of S:
-    :func:`lpy_light.field.side_budget`)."""
+    :func:`lpy_light.estimators.field.side_budget`)."""
     S = field.shape[0]
     n_b = field.shape[2]
     n = out.shape[0]

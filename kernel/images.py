@@ -8,7 +8,7 @@ would reflect to x (:func:`image_event`).  A photon that does leave a vertex, re
 target skips that crossing (:func:`image_counted`), so every path is counted once: unbiased.
 
 Deposits in photons of weight, lengths in scene units, solid angles in steradians; the planes are
-``kernel.records.Mirrors`` (``lpy_light.geometry.mirror_planes``).
+``kernel.records.Mirrors`` (``lpy_light.chamber.geometry.mirror_planes``).
 """
 import math
 

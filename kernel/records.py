@@ -3,7 +3,7 @@
 Every kernel function takes the few records it reads instead of dozens of loose arrays: a record is a
 named tuple of numpy arrays and numbers, which numba compiles to plain loads (``geo.verts[tri, 0, 0]`` costs
 what a loose ``tri_verts[tri, 0, 0]`` did).  A record's fields are one concept each, named from the
-physics; two arrays of the same shape cannot be swapped by position.  ``lpy_light.simulate.KernelScene``
+physics; two arrays of the same shape cannot be swapped by position.  ``lpy_light.estimators.kernel_scene.KernelScene``
 builds the scene's records once per run (``KernelScene.records``), the kernel allocates one thread's work
 arrays per chunk (:class:`Photon`, :class:`Accumulator`, :class:`ControlWork`), and the caller owns the
 :class:`Tallies` and :class:`Stats` a chunk adds to.
@@ -21,7 +21,7 @@ import numpy as np
 DIFFUSE_R, SPECULAR_R, DIFFUSE_T, SPECULAR_T, ABSORB = 0, 1, 2, 3, 4
 N_EVENTS = 5
 
-# transparent sensor kinds (lpy_light.sensors)
+# transparent sensor kinds (lpy_light.chamber.sensors)
 SENSOR_DISC, SENSOR_QUAD = 0, 1
 
 # next-event target kinds (MESH2: a two-sided mesh, an organ; MESH1: one-sided, a solid sensor)
@@ -45,10 +45,10 @@ Geometry = namedtuple("Geometry", [
     "receiver",      # (T,) int32: receiver of each triangle, or -1
     "two_sided",     # (T,) uint8: seen from both sides
     "mirror_plane",  # (T,) int32: the flat perfect mirror (Mirrors) each triangle belongs to, or -1
-    "plane_id",      # (T,) int32: each chamber triangle's plane (lpy_light.geometry.plane_ids), -1 for organs
+    "plane_id",      # (T,) int32: each chamber triangle's plane (lpy_light.chamber.geometry.plane_ids), -1 for organs
     "cop_start",     # (T + 1,) int64, and
     "cop_list",      # int32: the coplanar partners of triangle j, cop_list[cop_start[j]:cop_start[j + 1]]
-                     # (lpy_light.geometry.coplanar_partners); none: no random pick between coincident surfaces
+                     # (lpy_light.chamber.geometry.coplanar_partners); none: no random pick between coincident surfaces
     "cop_box",       # (T, 2, 3) float64: each triangle's bounding box, slightly widened (quick rejects)
     "cop_free",      # (T, 2, 3) float64: a box where none of the triangle's partners reaches
     "n_receivers",   # int: R
@@ -57,7 +57,7 @@ Geometry = namedtuple("Geometry", [
 Materials = namedtuple("Materials", [
     "prob",          # (M, 5, B) float64: probability of each scattering event per band
     "cum",           # (M, 5, P) float64: cumulative probabilities q of the event drawn on each path
-                     # (lpy_light.materials.sampling_tables)
+                     # (lpy_light.chamber.materials.sampling_tables)
     "band_pass",     # (B,) int64: the path that carries each band (its weight starts at 1 there, 0 elsewhere)
     "phong",         # (M,) float64: Phong exponent of the specular lobe (inf: a perfect mirror)
     "expected_absorption",   # bool: estimators weighted and nee deposit w·P_abs at each hit; analog draws it
@@ -185,7 +185,7 @@ Control = namedtuple("Control", [
     "plane",         # (r,) float32: each run's plane offset n·c
 ])
 
-# the chamber's light stored once and replayed into each step's plant (kernel.gather, lpy_light.reuse)
+# the chamber's light stored once and replayed into each step's plant (kernel.gather, lpy_light.estimators.reuse)
 REPLAY_STORE, REPLAY_CONTINUE = 1, 2
 # columns of a stored vertex (Replay.vpl): x, y, z, normal (3), mode, material, scale, triangle, nee_stats row,
 # then the photon's weights (B)

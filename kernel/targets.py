@@ -1,6 +1,6 @@
 """Next-event targets: which sensors and receivers next events aim at, as arrays for the kernel.
 
-numpy, run once per scene or change of organs (``lpy_light.simulate.KernelScene.retarget``), outside the
+numpy, run once per scene or change of organs (``lpy_light.estimators.kernel_scene.KernelScene.retarget``), outside the
 hot loop.  Targets are transparent sensors (discs and quads; sensor targets come first) and receivers
 (meshes: organs, two-sided, and solid sensors, one-sided); each gets the tally row of its light, an
 exclusion radius within which a vertex counts its crossings instead (1/d² is heavy-tailed near a quad or a

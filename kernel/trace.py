@@ -13,7 +13,7 @@ Physics (SEC2's model, see ``docs/physics.md``):
 * all spectral bands travel together: the event e is drawn with a probability
   q_e shared by the bands and each band's weight is multiplied by P_e,b / q_e,
   which is unbiased for every band.  Two estimators choose q (see
-  :func:`lpy_light.materials.sampling_tables`):
+  :func:`lpy_light.chamber.materials.sampling_tables`):
 
   - ``analog`` (SEC2's counting): q_e = P_e,b of each band, one path per band,
     absorption deposits the photon's weight where it ends — exactly analog;

@@ -39,7 +39,7 @@ def near_zones(tri_verts, tri_pid, n_chamber, near_start, near_list, near_r2, ce
     every vertex instead of the few that land there; a real vertex in the zone reached straight from a
     next-event vertex then skips that own event (:func:`kernel.nee.next_event`, ``cover_pid``).
 
-    ``tri_verts`` (T, 3, 3); ``tri_pid`` (T,) plane ids (:func:`lpy_light.geometry.plane_ids`); only the
+    ``tri_verts`` (T, 3, 3); ``tri_pid`` (T,) plane ids (:func:`lpy_light.chamber.geometry.plane_ids`); only the
     first ``n_chamber`` triangles (the chamber, not organs) make zones; ``near_*`` from
     :func:`kernel.targets.near_discs`;
     ``center`` (n, 3), ``disc_radius`` (n,) (0: not a disc) and unit ``normal`` (n, 3) of the targets.

@@ -2,11 +2,19 @@
 
 Quick start::
 
-    from lpy_light.scene import load_scene
-    from lpy_light import simulate
+    from lpy_light import LightModel                # in an .lpy file's EndEach: light.intercept(lstring, lscene)
+
+    from lpy_light.chamber.scene import load_scene  # a chamber alone
+    from lpy_light.run import simulate
     chamber = load_scene("scene.toml")
     result = simulate.run(simulate.KernelScene(chamber), photons=1_000_000, seed=1)
     photons, photons_std = result.sensors()          # (S, B) each
+
+The package's rooms, each importing only those below it (``docs/architecture.md``): ``errors``, ``messages`` and
+``process_state`` at the ground; :mod:`~lpy_light.chamber` (the chamber as read), :mod:`~lpy_light.estimators`
+(chamber and plant → tallies), :mod:`~lpy_light.run` (threads, Dask, sweeps, output files),
+:mod:`~lpy_light.plant` (L-Py, organs, the light model), :mod:`~lpy_light.report` (figures, SEC2, validation),
+:mod:`~lpy_light.calibration` (a chamber fitted to its survey); the command line (``cli``) on top.
 """
 __version__ = "0.1.0"
 
@@ -14,9 +22,9 @@ __version__ = "0.1.0"
 def __getattr__(name):
     # LightModel is imported lazily so that ``import lpy_light`` stays light
     if name == "LightModel":
-        from .light import LightModel
+        from .plant.light import LightModel
         return LightModel
     if name == "par_colour":
-        from .plant_view import par_colour
+        from .plant.plant_view import par_colour
         return par_colour
     raise AttributeError(name)

@@ -21,10 +21,10 @@ import threading
 from pathlib import Path
 
 from .errors import InputError, LpyLightError
-from .estimators import DEFAULT_ESTIMATOR, ESTIMATORS, NextEventSettings
+from .estimators.registry import DEFAULT_ESTIMATOR, ESTIMATORS, NextEventSettings
 from .process_state import preserved_locale
-from .results import check_out_dir, check_outputs
-from .scene import builtin_scenes, resolve_scene  # noqa: F401  (scene lookup lives with scenes)
+from .run.results import check_out_dir, check_outputs
+from .chamber.scene import builtin_scenes, resolve_scene  # noqa: F401  (scene lookup lives with scenes)
 
 DEFAULT_PRECISION = 0.01  # `run` without --photons/--precision: every sensor and band to 1 % (nee)
 DEFAULT_CAP = 100_000_000  # ... but no more photons than this (a sensor in the dark would hold the run)
@@ -146,8 +146,8 @@ def nee_options(args) -> dict:
 
 
 def cmd_run(args) -> int:
-    from . import simulate
-    from .scene import load_scene
+    from .run import simulate
+    from .chamber.scene import load_scene
 
     if args.threads is not None and not 1 <= args.threads <= simulate.MAX_THREADS:
         raise InputError("--threads must be in 1..%d" % simulate.MAX_THREADS)
@@ -173,7 +173,7 @@ def cmd_run(args) -> int:
     with contextlib.ExitStack() as cluster_scope:
         executor = None
         if args.dask is not None:
-            from . import cluster
+            from .run import cluster
             client = cluster_scope.enter_context(cluster.dask_client(args.dask, threads=args.threads))
             executor = cluster.DaskChunks(client)
         if executor is None:    # numba compiles the kernel on a first run: said, and timed apart from tracing
@@ -186,7 +186,7 @@ def cmd_run(args) -> int:
 def _compile_kernel(kscene, quiet: bool) -> None:
     """Compile the kernel for this run's estimator (first run only; loaded from numba's cache after),
     saying so while it compiles."""
-    from . import simulate
+    from .run import simulate
 
     said = []
 
@@ -201,8 +201,9 @@ def _compile_kernel(kscene, quiet: bool) -> None:
 
 
 def _trace_and_write(args, path, chamber, kscene, measured, ref, ref_band, executor=None) -> int:
-    from . import simulate, units
-    from .results import write_run
+    from .run import simulate
+    from .chamber import units
+    from .run.results import write_run
 
     stop, tracing = threading.Event(), [True]
 
@@ -240,7 +241,7 @@ def _trace_and_write(args, path, chamber, kscene, measured, ref, ref_band, execu
         norm = calibration.norm
     summary = write_run(args.out, chamber, result, norm, extra)
     if calibration is not None:
-        from .results import atomic_write, csv_text
+        from .run.results import atomic_write, csv_text
         atomic_write(Path(args.out) / "calibration.csv", csv_text(calibration.rows))
     if comparison is not None:
         print("lpy-light: %s vs %s (band %s): %s" % (path.name, ref.source, ref_band, comparison.line()))
@@ -256,7 +257,7 @@ def _trace_and_write(args, path, chamber, kscene, measured, ref, ref_band, execu
 
 def _what_it_means(args, chamber, result, summary, norm, executor=None) -> list:
     """The lines a run ends with: how long, how precise, where the results are and what their columns hold."""
-    from . import units
+    from .chamber import units
 
     where = "" if executor is None else " on %d Dask worker(s) at %s" % (executor.workers, executor.address)
     lines = ["%d photons in %.2f s (%.3g photons/s, estimator %s)%s%s"
@@ -290,10 +291,11 @@ def _what_it_means(args, chamber, result, summary, norm, executor=None) -> list:
 
 def _before_run(args, chamber):
     """Read and check what the run's results will be compared or calibrated with, before tracing."""
-    from . import reference, units
+    from .report import reference
+    from .chamber import units
 
     if args.plot:
-        from .plots import require_matplotlib
+        from .report.plots import require_matplotlib
         require_matplotlib()
     measured = None
     if args.calibrate is not None:
@@ -334,7 +336,8 @@ def _before_run(args, chamber):
 
 def _after_run(args, chamber, result, norm, measured, ref, ref_band):
     """Calibration and comparison of a finished run: (summary extras, Calibration or None, Comparison or None)."""
-    from . import reference, units
+    from .report import reference
+    from .chamber import units
 
     extra = {}
     calibration = comparison = None
@@ -365,8 +368,9 @@ def _after_run(args, chamber, result, norm, measured, ref, ref_band):
 
 def _plots(args, chamber, result, norm, comparison, ref, ref_band):
     """--plot: maps of every sensor plane (ppfd when known, else photons), and of the difference to --reference."""
-    from . import plots, reference, units
-    from .results import derived_table
+    from .report import plots, reference
+    from .chamber import units
+    from .run.results import derived_table
 
     if not len(chamber.sensors):
         logging.getLogger("lpy_light").warning("--plot: the scene has no sensors to map")
@@ -407,7 +411,7 @@ def _plots(args, chamber, result, norm, comparison, ref, ref_band):
 def _calibrate_parser(sub):
     c = sub.add_parser("calibrate", help="fit a scene to a survey of measured readings (lamp outputs and "
                                          "positions, a diffuser's spread, walls' reflectance): write the fitted scene, "
-                                         "a report and a picture (lpy_light.calibrate)")
+                                         "a report and a picture (lpy_light.calibration.calibrate)")
     c.add_argument("scene", help="scene TOML file, or a built-in scene name")
     c.add_argument("survey", help="csv: the scene's sensor columns (X,Y,Z,rayon_capteur,Xnorm,Ynorm,Znorm) and one "
                                   "column per band (655-665 or ppfd_655-665), µmol m-2 s-1; optional 'row'")
@@ -424,10 +428,11 @@ def _calibrate_parser(sub):
 
 
 def cmd_calibrate(args) -> int:
-    """``lpy-light calibrate``: read and check everything, fit (:mod:`lpy_light.calibrate`), then write."""
-    from . import calibrate, simulate
-    from .scene import load_scene
-    from .survey import read_survey
+    """``lpy-light calibrate``: read and check everything, fit (:mod:`lpy_light.calibration.calibrate`), then write."""
+    from .calibration import calibrate
+    from .run import simulate
+    from .chamber.scene import load_scene
+    from .calibration.survey import read_survey
 
     if args.threads is not None and not 1 <= args.threads <= simulate.MAX_THREADS:
         raise InputError("--threads must be in 1..%d" % simulate.MAX_THREADS)
@@ -497,7 +502,7 @@ def _grow_parser(sub):
 
 def _is_a_sensor_list(path) -> bool:
     """Whether a csv in ``--out`` is a sensor list (an input: SEC2's discs or quads), not a result."""
-    from .sensors import _DISC_COLUMNS, _QUAD_COLUMNS
+    from .chamber.sensors import _DISC_COLUMNS, _QUAD_COLUMNS
     try:
         with open(path, "rb") as f:
             head = f.read(4096).decode("utf-8-sig", errors="replace").split("\n")[0]
@@ -511,7 +516,7 @@ def _remove_stale_results(out):
     """After bad input, ``--out`` holds no results: those of an earlier run there would pass for this one's.
     A sensor list that happens to be called ``sensors.csv`` there (``--out`` = the scene's folder) is an
     input, and stays."""
-    from .results import RESULT_FILES
+    from .run.results import RESULT_FILES
     if not out or not Path(out).is_dir():
         return
     for name in RESULT_FILES:
@@ -568,8 +573,8 @@ def main(argv=None) -> int:
 
 
 def cmd_sweep(args, passthrough) -> int:
-    """``lpy-light sweep``: see :mod:`lpy_light.sweep`."""
-    from . import sweep
+    """``lpy-light sweep``: see :mod:`lpy_light.run.sweep`."""
+    from .run import sweep
 
     check_out_dir(args.out)
     if args.workers is not None and not 1 <= args.workers <= 1024:
@@ -584,7 +589,7 @@ def cmd_sweep(args, passthrough) -> int:
     try:
         if args.dask is None:
             return sweep.run_sweep(tasks, args.out, workers=args.workers, report=report)
-        from . import cluster
+        from .run import cluster
         address = "local:%d" % args.workers if args.workers and args.dask == "local" else args.dask
         with cluster.dask_client(address, threads=1 if cluster.local_workers(address) else None) as client:
             return sweep.run_sweep(tasks, args.out, client=client, report=report)
@@ -601,7 +606,7 @@ def _command(args, passthrough) -> int:
     if args.command == "run":
         return cmd_run(args)
     if args.command == "grow":
-        from .grow import cmd_grow
+        from .plant.grow import cmd_grow
         return cmd_grow(args)
     if args.command == "sweep":
         return cmd_sweep(args, passthrough)

@@ -4,12 +4,12 @@ lpy-light runs inside the modeller's process (the L-Py IDE, a notebook, a script
 that process as it found it.  PlantGL does not: its C++ calls ``setlocale(LC_ALL, "C")`` and never restores it in
 
 * ``Point2Array.to_str``, ``Point3Array.to_str``, ``Point4Array.to_str`` (``pa*_to_str`` in PlantGL's
-  ``src/wrapper/scenegraph/export_pointarrays.cpp``) — how :mod:`lpy_light.lpy` reads a tessellation's points;
+  ``src/wrapper/scenegraph/export_pointarrays.cpp``) — how :mod:`lpy_light.plant.lpy` reads a tessellation's points;
 * the ``.geom`` scene reader (``scne_scanner.l``, at every real number) and the ``.vgs`` reader (``vgsfile.cpp``).
 
 With the locale ``C``, Python's default text encoding becomes ASCII (``locale.getpreferredencoding()``): after
 one lit step, ``open(path, "w").write("µ")`` raises, and the L-Py IDE saves a model holding µ as an empty file.
-Every entry point that calls PlantGL (:meth:`lpy_light.light.LightModel.intercept`, the command line) runs
+Every entry point that calls PlantGL (:meth:`lpy_light.plant.light.LightModel.intercept`, the command line) runs
 inside :func:`preserved_locale`.
 """
 from __future__ import annotations

@@ -1,8 +1,8 @@
 """The built-in Angers chamber against SEC2 (quick check; the full validation is opt-in)."""
 import numpy as np
 
-from lpy_light import simulate
-from lpy_light.scene import load_scene
+from lpy_light.run import simulate
+from lpy_light.chamber.scene import load_scene
 
 
 def sec2_counts(path):

@@ -383,7 +383,7 @@ def test_variants_that_are_fine(tmp_path, capsys, changes):
 
 
 def test_decimal_comma_spectrum_is_read_as_such(tmp_path):
-    from lpy_light.units import read_lamp_spectrum
+    from lpy_light.chamber.units import read_lamp_spectrum
     path = tmp_path / "s.txt"
     path.write_text("wl value\n401,5 0,25\n403,5 0,5\n")
     s = read_lamp_spectrum(path)
@@ -477,14 +477,14 @@ ORGAN_CASES = [
 @pytest.mark.parametrize("make, words", [c[1:] for c in ORGAN_CASES], ids=[c[0] for c in ORGAN_CASES])
 @pytest.mark.filterwarnings("error")
 def test_organ_api_case(make, words):
-    from lpy_light import organs
+    from lpy_light.plant import organs
     with pytest.raises(LpyLightError) as info:
         make(organs)
     assert isinstance(info.value, InputError) and words in str(info.value), str(info.value)
 
 
 def test_some_nan_triangles_are_dropped_with_a_warning(caplog):
-    from lpy_light.organs import organ_from_mesh
+    from lpy_light.plant.organs import organ_from_mesh
     v = np.vstack([TRI_V, [[np.nan, 0, 0]]])
     organ = organ_from_mesh(1, (v, [[0, 1, 2], [0, 1, 3]]), "Leaf", module="Leaf")
     assert len(organ.triangles) == 1 and organ.dropped == 1
@@ -493,7 +493,7 @@ def test_some_nan_triangles_are_dropped_with_a_warning(caplog):
 
 @pytest.fixture(scope="module")
 def light_chamber(tmp_path_factory):
-    from lpy_light.scene import load_scene
+    from lpy_light.chamber.scene import load_scene
     return load_scene(write(tmp_path_factory.mktemp("lm")))
 
 
@@ -532,7 +532,7 @@ def test_out_is_a_file(tmp_path, capsys):
 
 
 def test_results_that_cannot_be_written_give_one_line(tmp_path, capsys, monkeypatch):
-    from lpy_light import results
+    from lpy_light.run import results
     scene = write(tmp_path / "s")
 
     def full(path, text):

@@ -2,8 +2,8 @@
 import numpy as np
 import pytest
 
-from lpy_light import simulate
-from lpy_light.scene import load_scene
+from lpy_light.run import simulate
+from lpy_light.chamber.scene import load_scene
 from scenes import box, lamp_rectangle, write_scene
 
 RAD = ("void plastic wall\n0\n0\n5 0.5 0.5 0.5 0 0\n\nvoid light lamp\n0\n0\n3 10 10 10\n\n"
@@ -123,7 +123,7 @@ def test_bands_that_cannot_share_a_path_travel_on_their_own(tmp_path):
     each reflection on the film: a σ that cannot be trusted).  Those bands go on paths of their own (the
     green band, which fits with either, shares the first): every weight factor stays <= 1, and the bands
     agree with analog counting."""
-    from lpy_light.materials import band_passes, sampling_tables
+    from lpy_light.chamber.materials import band_passes, sampling_tables
     chamber = _dichroic(tmp_path / "d")
     ks = simulate.KernelScene(chamber, "weighted")
     np.testing.assert_array_equal(ks.band_pass, [0, 0, 1])

@@ -1,4 +1,4 @@
-"""lpy-light calibrate: a chamber fitted to a survey (lpy_light.calibrate, lpy_light.survey, lpy_light.overrides).
+"""lpy-light calibrate: a chamber fitted to a survey (lpy_light.calibration.calibrate, lpy_light.calibration.survey, lpy_light.chamber.overrides).
 
 The fit is checked where its answer is known: a survey made by the kernel itself with one lamp at 80 % and
 another moved 2 cm, plus 1 % noise, must give back both within their stated uncertainty (3σ), and nothing
@@ -11,10 +11,11 @@ import sys
 import numpy as np
 import pytest
 
-from lpy_light import calibrate, simulate
+from lpy_light.calibration import calibrate
+from lpy_light.run import simulate
 from lpy_light.errors import InputError
-from lpy_light.scene import load_scene, resolve_scene
-from lpy_light.survey import read_survey
+from lpy_light.chamber.scene import load_scene, resolve_scene
+from lpy_light.calibration.survey import read_survey
 from scenes import box
 
 
@@ -102,7 +103,7 @@ def test_the_fitted_scene_runs_and_gives_the_survey_back(synthetic, tmp_path):
     ks = simulate.KernelScene(ch, estimator="nee")
     ks.prune_next_events()
     r = simulate.run(ks, 2_000_000, seed=21)
-    from lpy_light import units
+    from lpy_light.chamber import units
     norm = units.scene_normalisation(ch, r)
     p, s = r.sensors()
     ppfd, ppfd_std = units.ppfd(p, s, ch.sensors.area * 1e-6, norm)

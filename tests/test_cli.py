@@ -130,7 +130,7 @@ def test_a_folder_stands_for_its_scene_and_a_results_folder_is_not_a_scene(tmp_p
     scene.  A folder holding one scene (``scene.toml``, or a single ``.toml``) stands for it; any other folder
     is refused with its name."""
     from lpy_light.errors import InputError
-    from lpy_light.scene import builtin_scenes, resolve_scene
+    from lpy_light.chamber.scene import builtin_scenes, resolve_scene
     monkeypatch.chdir(tmp_path)
     (tmp_path / "angers").mkdir()
     (tmp_path / "angers" / "summary.json").write_text("{}")

@@ -2,8 +2,9 @@
 import io
 import time
 
-from lpy_light import kernel_scene, simulate
-from lpy_light.scene import load_scene
+from lpy_light.estimators import kernel_scene
+from lpy_light.run import simulate
+from lpy_light.chamber.scene import load_scene
 
 from scenes import box, lamp_rectangle, write_scene
 
@@ -77,7 +78,7 @@ def test_a_growth_step_says_how_long_the_kernel_compiled_in_it(tmp_path, monkeyp
     nothing."""
     import trimesh
 
-    from lpy_light.light import LightModel
+    from lpy_light.plant.light import LightModel
     rad = ("void plastic grey\n0\n0\n5 .5 .5 .5 0 0\n\nvoid light lamp\n0\n0\n3 10 10 10\n\n"
            + box("grey", (0, 0, 0), (1000, 1000, 1100)) + lamp_rectangle("lamp", (500, 500), 100, 1000))
     model = LightModel(write_scene(tmp_path, rad, [(500, 500, 500, 50, 0, 0, 1)]), organs={"Leaf": {"reflectance": 0.5}},

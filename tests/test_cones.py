@@ -13,7 +13,7 @@ import trimesh
 
 from lpy_light.kernel.cones import CONE_DATA, OMC, cone_cdf, cone_direction, cone_pdf
 from lpy_light.kernel.records import V_ISOTROPIC, V_SURFACE, Clusters, Vertex
-from lpy_light.light import LightModel
+from lpy_light.plant.light import LightModel
 from lpy_light.errors import InputError
 from scenes import rad_polygon, write_scene
 
@@ -189,7 +189,7 @@ def test_cone_rays_through_a_mirror_are_unbiased(tmp_path):
 def test_cone_rays_by_default_for_a_canopy_only():
     """By default a plant's few hundred targets get no cone rays (they cost it more than they save), a canopy
     of 1,000 targets or more 10 per vertex (at a photon weight × cone share of 0.5); an explicit setting holds either way."""
-    from lpy_light.simulate import CONE_RAYS, CONE_TARGETS, cones_for
+    from lpy_light.run.simulate import CONE_RAYS, CONE_TARGETS, cones_for
     assert cones_for(CONE_TARGETS - 1) == 0.0 and cones_for(CONE_TARGETS) == CONE_RAYS == 10.0
     model = LightModel("angers", organs={"Leaf": THIN}, plant_unit="mm", photons=1000)
     assert model.kscene.settings.cones is None
@@ -199,7 +199,7 @@ def test_cone_rays_by_default_for_a_canopy_only():
 def test_local_rays_by_default_for_a_canopy_only():
     """By default a plant's organs keep their own events and picks, a canopy's leaves around a vertex get 8 local
     rays; an explicit setting holds either way, and one out of range is refused."""
-    from lpy_light.simulate import CONE_TARGETS, LOCAL_RAYS, local_for
+    from lpy_light.run.simulate import CONE_TARGETS, LOCAL_RAYS, local_for
     assert local_for(CONE_TARGETS - 1) == 0.0 and local_for(CONE_TARGETS) == LOCAL_RAYS == 8.0
     assert LightModel("angers", organs={"Leaf": THIN}, plant_unit="mm", photons=1000).kscene.settings.local is None
     assert LightModel("angers", organs={"Leaf": THIN}, plant_unit="mm", photons=1000, local_rays=2).kscene.settings.local == 2.0

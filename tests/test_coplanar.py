@@ -7,9 +7,9 @@ rounding (~76 % Makrolon); SEC2's result is reproduced by a fair choice (docs/va
 import numpy as np
 import pytest
 
-from lpy_light import simulate
-from lpy_light.geometry import coplanar_partners, triangulate_polygon
-from lpy_light.scene import load_scene
+from lpy_light.run import simulate
+from lpy_light.chamber.geometry import coplanar_partners, triangulate_polygon
+from lpy_light.chamber.scene import load_scene
 from scenes import lamp_rectangle, rad_polygon, write_scene
 
 MATERIALS = ("void plastic black\n0\n0\n5 0 0 0 0 0\n\n"

@@ -21,9 +21,11 @@ import pytest
 
 distributed = pytest.importorskip("distributed")
 
-from lpy_light import cli, cluster, grow, simulate, sweep  # noqa: E402
+from lpy_light import cli
+from lpy_light.run import cluster, simulate, sweep
+from lpy_light.plant import grow  # noqa: E402
 from lpy_light.errors import InputError  # noqa: E402
-from lpy_light.scene import load_scene  # noqa: E402
+from lpy_light.chamber.scene import load_scene  # noqa: E402
 
 CHUNK = simulate.CHUNK
 

@@ -2,8 +2,8 @@
 import numpy as np
 import pytest
 
-from lpy_light import simulate
-from lpy_light.scene import load_scene
+from lpy_light.run import simulate
+from lpy_light.chamber.scene import load_scene
 from scenes import box, lamp_rectangle, rectangle_to_disc_fraction, write_scene
 
 BLACK = "void plastic black\n0\n0\n5 0 0 0 0 0\n\nvoid light lamp\n0\n0\n3 10 10 10\n\n"

@@ -7,11 +7,12 @@ from pathlib import Path
 
 import pytest
 
-from lpy_light import cli, simulate
+from lpy_light import cli
+from lpy_light.run import simulate
 from lpy_light.errors import InputError
-from lpy_light.estimators import DEFAULT_ESTIMATOR, ESTIMATORS, NextEventSettings, estimator
-from lpy_light.light import LightModel
-from lpy_light.scene import load_scene, resolve_scene
+from lpy_light.estimators.registry import DEFAULT_ESTIMATOR, ESTIMATORS, NextEventSettings, estimator
+from lpy_light.plant.light import LightModel
+from lpy_light.chamber.scene import load_scene, resolve_scene
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -63,7 +64,7 @@ def test_light_model_arguments_are_checked_by_the_settings_with_their_own_names(
 
 
 def _kernel_scene_attributes() -> set:
-    tree = ast.parse((ROOT / "lpy_light" / "kernel_scene.py").read_text(encoding="utf-8"))
+    tree = ast.parse((ROOT / "lpy_light" / "estimators" / "kernel_scene.py").read_text(encoding="utf-8"))
     cls = next(n for n in tree.body if isinstance(n, ast.ClassDef) and n.name == "KernelScene")
     return {t.attr for n in ast.walk(cls) if isinstance(n, (ast.Assign, ast.AugAssign))
             for t in (n.targets if isinstance(n, ast.Assign) else [n.target])

@@ -9,7 +9,7 @@ import pytest
 import trimesh
 
 from lpy_light.kernel.targets import closed_meshes
-from lpy_light.light import LightModel
+from lpy_light.plant.light import LightModel
 from scenes import write_scene
 
 from test_organ_zones import GREEN, ROOM, THIN

@@ -16,11 +16,13 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from lpy_light import cli, memory, simulate
+from lpy_light import cli
+from lpy_light.estimators import memory
+from lpy_light.run import simulate
 from lpy_light.errors import InputError, LpyLightError, ResourceError
-from lpy_light.radiance import parse_rad, read_rad
-from lpy_light.scene import Physics, build_chamber, load_scene, resolve_scene
-from lpy_light.sensors import DISC, Sensors
+from lpy_light.chamber.radiance import parse_rad, read_rad
+from lpy_light.chamber.scene import Physics, build_chamber, load_scene, resolve_scene
+from lpy_light.chamber.sensors import DISC, Sensors
 from scenes import box, lamp_rectangle, rad_polygon, write_scene
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -222,7 +224,7 @@ def mutated_lines(draw, valid, odd):
 
 def check_sec2_text(text):
     """Parse and build (units resolved as a scene does), or an InputError of one line; nothing else."""
-    from lpy_light.scene import in_unit
+    from lpy_light.chamber.scene import in_unit
     try:
         prims = parse_rad(text, "fuzz.rad")
         build_chamber(in_unit(prims, "mm"), physics=Physics())
@@ -233,7 +235,7 @@ def check_sec2_text(text):
 
 
 def check_obj_text(text):
-    from lpy_light.obj import parse_obj
+    from lpy_light.chamber.obj import parse_obj
     materials = parse_rad("void plastic grey 0 0 5 .5 .5 .5 0 0\nvoid light lamp32w 0 0 3 1 1 1\n"
                           "lamp32w point_light n 50 50 50\n", "m.rad")
     try:
@@ -354,7 +356,7 @@ def test_keyboard_interrupt_in_run_keeps_a_whole_prefix(tmp_path):
 
 
 def test_results_are_written_atomically_and_readable(tmp_path, monkeypatch):
-    from lpy_light import results
+    from lpy_light.run import results
     target = tmp_path / "a.txt"
     results.atomic_write(target, "one\n")
     assert target.read_text() == "one\n" and oct(target.stat().st_mode & 0o777) != oct(0o600)
@@ -490,10 +492,10 @@ def _mutate_text(valid):
 
 
 def _readers():
-    from lpy_light.optical import read_specularities, read_table
-    from lpy_light.scene import load_scene
-    from lpy_light.sensors import read_sensors
-    from lpy_light.units import read_lamp_spectrum
+    from lpy_light.chamber.optical import read_specularities, read_table
+    from lpy_light.chamber.scene import load_scene
+    from lpy_light.chamber.sensors import read_sensors
+    from lpy_light.chamber.units import read_lamp_spectrum
     return {
         "sensors.csv": (read_sensors, "X,Y,Z,rayon_capteur,Xnorm,Ynorm,Znorm\n1,2,3,4,0,0,1\n5,6,7,8,0,1,0\n"),
         "quads.csv": (read_sensors, "x0,y0,z0,x1,y1,z1,x2,y2,z2,x3,y3,z3\n0,0,0,1,0,0,1,1,0,0,1,0\n"),

@@ -1,4 +1,4 @@
-"""The ``field`` estimator (:mod:`lpy_light.field`): the light entering the plant's region stored once, each step's
+"""The ``field`` estimator (:mod:`lpy_light.estimators.field`): the light entering the plant's region stored once, each step's
 rays kept inside the region.
 
 The scene (as ``test_reuse``'s): a room whose ceiling light comes through a diffusing sheet, one wall a perfect
@@ -12,10 +12,10 @@ import pytest
 import trimesh
 
 from lpy_light.errors import InputError
-from lpy_light.field import FieldSettings, clip_polygon, face_grid, field_step
+from lpy_light.estimators.field import FieldSettings, clip_polygon, face_grid, field_step
 from lpy_light.kernel.field import draw_direction, field_bin, guide_tables, sphere_bin, stratified_directions
 from lpy_light.kernel.rng import seed_stream
-from lpy_light.light import LightModel
+from lpy_light.plant.light import LightModel
 from scenes import write_scene
 from test_reuse import GREEN, ROOM, THIN, _light, _plant
 
@@ -61,7 +61,7 @@ def test_without_the_passes_between_organs_the_pocket_bud_loses_its_light(room, 
     model.run(organs)                                    # the field, traced once
     result = field_step(model.kscene, model.keeper.field, dataclasses.replace(SMALL, bounces=0), seed=5,
                         threads=2, max_passes=0)
-    from lpy_light.organ_light import organ_lights
+    from lpy_light.plant.organ_light import organ_lights
     lights = organ_lights(model.kscene, result, organs, model.flux, model.flux_std, model.chamber)
     pocket = lights[1]
     z = (pocket.ppfd[0] - full[0][0]) / math.hypot(pocket.ppfd_std[0], full[1][0])

@@ -8,8 +8,8 @@ two-mirror events off, 44.8 and 56.8 (+27 %)."""
 import numpy as np
 import pytest
 
-from lpy_light import simulate
-from lpy_light.scene import load_scene, resolve_scene
+from lpy_light.run import simulate
+from lpy_light.chamber.scene import load_scene, resolve_scene
 
 
 @pytest.fixture(scope="module")

@@ -1,5 +1,6 @@
-"""The package's modules import one way: no cycle, even through imports inside functions (issue 44), and each
-module imports alone in a fresh interpreter."""
+"""The package's modules import one way: no cycle, even through imports inside functions (issue 44); its rooms
+(subpackages) import only the rooms below them (issue 55); each module imports alone in a fresh interpreter; and
+no kernel function takes more than a dozen parameters."""
 import ast
 import subprocess
 import sys
@@ -72,6 +73,58 @@ def test_the_cycle_finder_finds_a_cycle():
 def test_no_import_cycle_in_the_package():
     graph = {_name(p): {m for m in imports_of(p) if m != "lpy_light"} for p in MODULES}
     assert cycles(graph) == []
+
+
+#: the package's floors, ground first: a module may import its own room's modules and those of lower floors only
+#: (two rooms on one floor know nothing of each other).  Top-level modules are rooms of their own, on the floor named.
+FLOORS = [
+    {"errors", "messages", "process_state"},
+    {"chamber"},
+    {"estimators"},
+    {"run"},
+    {"plant", "report"},
+    {"calibration"},
+    {"cli", "__main__", "lpy_light"},
+]
+MAX_TOP_MODULES = 8
+
+
+def room(module: str) -> str:
+    """The room of a module: its subpackage, or its own name at the top (the package's __init__: 'lpy_light')."""
+    parts = module.split(".")
+    return parts[1] if len(parts) > 1 else parts[0]
+
+
+def floor(name: str) -> int:
+    return next(i for i, rooms in enumerate(FLOORS) if name in rooms)
+
+
+def imports_against_the_floors(graph: dict) -> list:
+    """(importer, imported) pairs where a room imports another room that is not below it."""
+    return sorted((a, b) for a, bs in graph.items() for b in bs
+                  if room(a) != room(b) and floor(room(b)) >= floor(room(a)))
+
+
+def test_the_floor_check_finds_an_import_upward_and_across():
+    graph = {"lpy_light.chamber.scene": {"lpy_light.errors", "lpy_light.run.simulate"},
+             "lpy_light.plant.grow": {"lpy_light.report.plots", "lpy_light.chamber.units"}}
+    assert imports_against_the_floors(graph) == [("lpy_light.chamber.scene", "lpy_light.run.simulate"),
+                                                 ("lpy_light.plant.grow", "lpy_light.report.plots")]
+
+
+def test_rooms_import_only_the_rooms_below_them():
+    graph = {_name(p): imports_of(p) for p in MODULES}
+    assert {room(m) for m in graph} <= set().union(*FLOORS), "a room or top module the floors do not place"
+    assert imports_against_the_floors(graph) == []
+
+
+def test_few_modules_at_the_top_and_every_room_says_what_it_serves():
+    top = [p for p in PACKAGE.glob("*.py")]
+    assert len(top) <= MAX_TOP_MODULES, sorted(p.name for p in top)
+    for init in PACKAGE.glob("*/__init__.py"):
+        tree = ast.parse(init.read_text(encoding="utf-8"))
+        assert ast.get_docstring(tree), init
+        assert len(tree.body) == 1, "%s: a room's __init__ is its docstring alone (no re-exports)" % init
 
 
 @pytest.mark.parametrize("module", [_name(p) for p in MODULES])

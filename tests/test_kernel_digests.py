@@ -5,7 +5,7 @@ Each case traces a few photons with a fixed seed through a path of the kernel: t
 estimator (``weighted``, ``nee`` with its pilot and the control variate, image and zone events; ``analog``), the
 12-band chamber (``nee``, and ``analog``: one path per band), a small room with every emitter kind (line, point,
 polygon, cylinder, sphere), disc and quad sensors, a solid sensor, a mirror and a Phong lobe, and the procedural
-rose of ``benchmarks/rose.py`` through :class:`~lpy_light.light.LightModel` (organs from meshes, next events aimed
+rose of ``benchmarks/rose.py`` through :class:`~lpy_light.plant.light.LightModel` (organs from meshes, next events aimed
 at leaves and buds).
 
 * **Bit for bit** (:func:`test_outputs_bitwise_as_pinned`): the sha256 of the raw float64 arrays a case returns
@@ -102,9 +102,9 @@ class Outcome:
 
 def _run(scene, estimator, photons, seed=3, picks=None, prune=True) -> Outcome:
     """Trace as ``lpy-light run`` does (with ``nee``: the pilot that switches off blind sources first)."""
-    from lpy_light import simulate
+    from lpy_light.run import simulate
     from lpy_light.cli import resolve_scene
-    from lpy_light.scene import load_scene
+    from lpy_light.chamber.scene import load_scene
 
     chamber = load_scene(resolve_scene(str(scene)))
     ks = simulate.KernelScene(chamber, estimator)
@@ -122,8 +122,8 @@ def _rose(photons, stage=2, stages=4, cones=None) -> Outcome:
     """The rose's organs' numbers.  R:FR is read as the plain ratio of the tallies (``ratios.uncorrected``),
     the formula these digests were recorded with: its bias correction (issue 45) is arithmetic on the
     kernel's tallies, not the kernel, and the digests are to pin the kernel."""
-    from lpy_light import ratios
-    from lpy_light.light import LightModel
+    from lpy_light.chamber import ratios
+    from lpy_light.plant.light import LightModel
     from rose import LEAF_MATERIAL, rose
 
     model = LightModel("angers-12bands", photons=photons, plant_unit="cm", estimator="nee", threads=2,

@@ -9,9 +9,9 @@ from pathlib import Path
 
 import pytest
 
-from lpy_light.light import organ_rows
-from lpy_light.plant_view import plant_picture
-from lpy_light.results import csv_text
+from lpy_light.plant.light import organ_rows
+from lpy_light.plant.plant_view import plant_picture
+from lpy_light.run.results import csv_text
 from test_organs import FLUX, disc_mesh, square_mesh, _model, black_room  # noqa: F401  (fixture)
 
 LSYSTEMS = Path(__file__).parent.parent / "lsystems"
@@ -148,8 +148,8 @@ def test_meshes_read_fast_are_plantgls_own():
     for a leaf swept along a curve; a shape whose triangles differ from its topology's is not given them."""
     import numpy as np
     import openalea.plantgl.all as pgl
-    from lpy_light import lpy as adapter
-    from lpy_light.organs import TessellationCache
+    from lpy_light.plant import lpy as adapter
+    from lpy_light.plant.organs import TessellationCache
     V = pgl.Vector3
     path = pgl.Polyline([V(0, 0, 0), V(0, 0.5, 1), V(0, 2, 1.5), V(0, 3, 1)])
     profile = pgl.Polyline2D([pgl.Vector2(-0.5, 0), pgl.Vector2(0, 0.1), pgl.Vector2(0.5, 0)])
@@ -309,7 +309,7 @@ def test_light_drives_branching():
 def test_the_viewer_shows_each_organs_par():
     """The interpretation rules colour every leaf and bud by its PAR on a fixed scale (what Animate shows in the
     L-Py viewer), internodes grey-brown (their light is not estimated)."""
-    from lpy_light.plant_view import UNKNOWN, par_colour
+    from lpy_light.plant.plant_view import UNKNOWN, par_colour
     lstring, lsys = _derive(ROSE, 6, PHOTONS=50_000, PRECISION=0)
     scene = lsys.sceneInterpretation(lstring)
     seen = {}

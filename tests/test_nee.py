@@ -5,11 +5,11 @@ import numpy as np
 import pytest
 from numba import njit
 
-from lpy_light import simulate
+from lpy_light.run import simulate
 from lpy_light.kernel.nee import disc_point_by_solid_angle
 from lpy_light.kernel.rng import seed_stream, uniform
 from lpy_light.kernel.tallies import C_BATCHES, N_COUNTERS
-from lpy_light.scene import load_scene
+from lpy_light.chamber.scene import load_scene
 from scenes import box, lamp_rectangle, rad_polygon, rectangle_to_disc_fraction, write_scene
 
 BLACK = "void plastic black\n0\n0\n5 0 0 0 0 0\n\nvoid light lamp\n0\n0\n3 10 10 10\n\n"
@@ -107,7 +107,7 @@ def test_pruning_blind_sources_changes_nothing(room):
 def _floor_room(tmp_path, organ_mesh):
     """A 1 m black room with a grey floor and a lamp above, and one black organ of ``organ_mesh`` (v, f) in it:
     (chamber, its materials by name, the organ, a nee KernelScene of the two)."""
-    from lpy_light.organs import organ_from_mesh
+    from lpy_light.plant.organs import organ_from_mesh
 
     rad = ("void plastic grey\n0\n0\n5 0.6 0.6 0.6 0 0\n\n" + BLACK
            + box("black", (0, 0, 0), (1000, 1000, 1100)).replace("black polygon floor", "grey polygon floor")
@@ -197,7 +197,7 @@ def test_image_events_light_mirror_lit_sensors(room):
 
 
 def test_mirror_planes_are_flat_specular_surfaces():
-    from lpy_light.geometry import cylinder, mirror_planes, triangulate_polygon
+    from lpy_light.chamber.geometry import cylinder, mirror_planes, triangulate_polygon
 
     square = triangulate_polygon(np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], float))
     tube = cylinder(np.array([0, 0, 0.0]), np.array([0, 0, 1.0]), 0.1)
@@ -448,7 +448,7 @@ MIRROR_ROOM = ("void plastic white\n0\n0\n5 0.7 0.7 0.7 0 0\n\nvoid plastic leaf
 
 def _mirror_room_organs():
     import trimesh
-    from lpy_light.organs import organ_from_mesh
+    from lpy_light.plant.organs import organ_from_mesh
     plate = np.array([[900, 450, 450], [900, 550, 450], [900, 550, 550], [900, 450, 550]], float)
     cube = trimesh.creation.box(extents=(60, 60, 60))
     return [organ_from_mesh(0, (plate, np.array([[0, 1, 2], [0, 2, 3]])), ("leafy", "leafy"), "Leaf", 1.0, (0, 0, 0)),
@@ -496,7 +496,7 @@ def test_a_point_just_behind_another_surface_is_not_seen(tmp_path):
     (it did: the rose's buds, which sink into their internodes, were 3 % too bright, 7σ against counting).
     A second ball in the open agrees with counting."""
     import trimesh
-    from lpy_light.organs import organ_from_mesh
+    from lpy_light.plant.organs import organ_from_mesh
     chamber = load_scene(write_scene(tmp_path, BUD_ROOM))
     ball = trimesh.creation.icosphere(subdivisions=2, radius=2.0)
     box_ = trimesh.creation.box(extents=(4.04, 4.04, 4.04))
@@ -595,7 +595,7 @@ def test_a_bud_against_its_stem_gets_its_near_light_without_a_heavy_tail(tmp_pat
     made no next event and their crossings were counted (the exclusion radius of earlier versions), the
     spread was 37x the reported σ (0.095 for a spread of 3.6): a σ that says nothing."""
     import trimesh
-    from lpy_light.light import LightModel
+    from lpy_light.plant.light import LightModel
     scene = write_scene(tmp_path, ROOM)
     stem = trimesh.creation.cylinder(radius=6.0, height=400.0, sections=16)
     stem.apply_translation((0, 0, 200.0))

@@ -14,7 +14,7 @@ from lpy_light.kernel.importance import cluster_cdf, draw
 from lpy_light.kernel.organ_zones import solid_angles
 from lpy_light.kernel.records import T_MESH2
 from lpy_light.kernel.sampling import triangle_solid_angle
-from lpy_light.light import LightModel
+from lpy_light.plant.light import LightModel
 from scenes import box, rad_polygon, write_scene
 
 ROOM = ("void plastic grey\n0\n0\n5 0.5 0.5 0.5 0 0\n\n"

@@ -5,9 +5,9 @@ import numpy as np
 import pytest
 import trimesh
 
-from lpy_light import lpy
+from lpy_light.plant import lpy
 from lpy_light.errors import InputError
-from lpy_light.light import LightModel
+from lpy_light.plant.light import LightModel
 from scenes import box, lamp_rectangle, rectangle_to_disc_fraction, write_scene
 
 BLACK_ROOM = ("void plastic black\n0\n0\n5 0 0 0 0 0\n\nvoid light lamp\n0\n0\n3 10 10 10\n\n"
@@ -276,8 +276,8 @@ def test_an_organ_no_sample_reached_is_undefined_not_zero_plus_minus_zero(black_
     the run does not have) but None for the rules, empty cells in organs.csv, and a warning counted per organ.
     The leaf beside it keeps its numbers."""
     import csv
-    from lpy_light.light import organ_rows
-    from lpy_light.results import csv_text
+    from lpy_light.plant.light import organ_rows
+    from lpy_light.run.results import csv_text
     model = _model(black_room, photons=3_000)
     lit = disc_mesh(30, z=500)
     hidden = trimesh.creation.box(extents=(20, 20, 20)).apply_translation((300, 300, 100))   # closed: a cave
@@ -319,7 +319,7 @@ def test_precision_on_the_targets_stops_when_their_par_is_there(black_room):
 
 def test_lamp_scale_multiplies_the_flux_per_band(tmp_path):
     """``lamp_scale``: a number dims every band; ``{"LO-HI": k}`` the bands within LO-HI nm only."""
-    from lpy_light.light import lamp_factors
+    from lpy_light.plant.light import lamp_factors
 
     class Bands:
         n_bands, bands = 3, [(600, 655), (655, 665), (725, 735)]

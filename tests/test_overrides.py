@@ -1,12 +1,13 @@
-"""A scene's changes to its geometry (lpy_light.overrides): lamp outputs per band, shifts, materials, lamp_flux, base."""
+"""A scene's changes to its geometry (lpy_light.chamber.overrides): lamp outputs per band, shifts, materials, lamp_flux, base."""
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from lpy_light import simulate, units
+from lpy_light.run import simulate
+from lpy_light.chamber import units
 from lpy_light.errors import InputError
-from lpy_light.scene import load_scene
+from lpy_light.chamber.scene import load_scene
 from scenes import box
 
 ROOM = ("void plastic grey\n0\n0\n5\n0.5 0.5 0.5 0 0\n\nvoid light lum\n0\n0\n3\n10 10 10\n\n"

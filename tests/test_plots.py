@@ -7,7 +7,7 @@ import sys
 import numpy as np
 import pytest
 
-from lpy_light import plots
+from lpy_light.report import plots
 from lpy_light.errors import LpyLightError
 from scenes import box, lamp_rectangle, write_scene
 
@@ -96,9 +96,9 @@ def test_missing_matplotlib_is_a_clear_error(monkeypatch):
 def test_angers_ppfd_units_and_derived(tmp_path):
     """angers and angers-12bands: ppfd beside photons; the sensors' mean ppfd is the measured band flux;
     PAR (the nine bands in 400-700) and R:FR (655-665 / 725-735) per sensor; the assumption stated."""
-    from lpy_light import units
-    from lpy_light.scene import resolve_scene
-    from lpy_light.scene import load_scene
+    from lpy_light.chamber import units
+    from lpy_light.chamber.scene import resolve_scene
+    from lpy_light.chamber.scene import load_scene
 
     for name in ("angers", "angers-12bands"):
         out = tmp_path / name

@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 import trimesh
 
-from lpy_light import precision
+from lpy_light.plant import precision
 from lpy_light.errors import InputError
-from lpy_light.light import LightModel
-from lpy_light.simulate import CHUNK
+from lpy_light.plant.light import LightModel
+from lpy_light.run.simulate import CHUNK
 from scenes import write_scene
 from test_ratios import GREY_ROOM, LEAF, OPTICAL
 

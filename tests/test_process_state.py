@@ -7,7 +7,7 @@ import locale
 import pytest
 
 from lpy_light.process_state import current_locale, preserved_locale
-from lpy_light.results import CsvStream
+from lpy_light.run.results import CsvStream
 
 LIBC = ctypes.CDLL(None)
 LIBC.setlocale.restype = ctypes.c_char_p

@@ -3,7 +3,7 @@ sensor plane, mean 1, with its σ and its change across the rows -- the structur
 import numpy as np
 import pytest
 
-from lpy_light import reference
+from lpy_light.report import reference
 from lpy_light.errors import InputError
 
 # two horizontal planes (z = 1000, 1400) of 4 columns (x) x 3 rows (y), facing up, and one sideways sensor
@@ -80,7 +80,7 @@ def test_average_of_two_references_per_emitted_photon():
 def test_the_two_angers_references_agree_row_by_row(angers_dir):
     """The two Angers references (SEC2, photon mapping) have no tilt along y against each other: the premise of
     testing our rows against their average (docs/validation.md, section 8)."""
-    from lpy_light import validation
+    from lpy_light.report import validation
     sec2 = reference.read_sec2(angers_dir / "reference-sec2" / "mesures.txt")
     pm = reference.read_photon_mapping(validation.PHOTON_MAPPING)
     chamber = validation.load("angers")

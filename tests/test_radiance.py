@@ -2,8 +2,8 @@
 import pytest
 
 from lpy_light.errors import InputError
-from lpy_light.radiance import parse_rad, read_rad
-from lpy_light.scene import build_chamber
+from lpy_light.chamber.radiance import parse_rad, read_rad
+from lpy_light.chamber.scene import build_chamber
 
 
 def test_angers_reads_to_130_primitives(angers_dir):
@@ -26,7 +26,7 @@ def test_repeated_names_all_or_the_last(angers_dir):
     stays, nothing else changes; "all" (the default, Radiance's reading) keeps both."""
     import numpy as np
 
-    from lpy_light.scene import Physics
+    from lpy_light.chamber.scene import Physics
     prims = read_rad(angers_dir / "geometry/testChamber.rad")
     every = build_chamber(prims)
     last = build_chamber(prims, physics=Physics(repeated_names="last"))
@@ -82,7 +82,7 @@ def test_semantic_errors_name_the_line():
 
 def test_concave_polygon_keeps_area_and_winding():
     import numpy as np
-    from lpy_light.geometry import triangle_areas, triangulate_polygon, triangle_normals
+    from lpy_light.chamber.geometry import triangle_areas, triangulate_polygon, triangle_normals
     L = [(0, 0, 0), (2, 0, 0), (2, 1, 0), (1, 1, 0), (1, 2, 0), (0, 2, 0)]   # L-shape, area 3
     tris = triangulate_polygon(L)
     assert triangle_areas(tris).sum() == pytest.approx(3)
@@ -99,7 +99,7 @@ def test_polygon_with_a_hole_cut_by_a_seam(seam_at):
     polygon's way, none over the hole.  (Ear clipping that let the seam's copies block every ear fell back
     to a fan: area 140, triangles facing backwards, and the hole covered.)"""
     import numpy as np
-    from lpy_light.geometry import triangle_areas, triangle_normals, triangulate_polygon
+    from lpy_light.chamber.geometry import triangle_areas, triangle_normals, triangulate_polygon
     if seam_at == "left edge":
         pts = [(0, 0, 0), (10, 0, 0), (10, 10, 0), (0, 10, 0), (0, 5, 0), (4, 5, 0), (4, 6, 0), (6, 6, 0),
                (6, 4, 0), (4, 4, 0), (4, 5, 0), (0, 5, 0)]
@@ -117,7 +117,7 @@ def test_many_sided_polygons():
     round vectorised) keep their exact area and winding; a pentagram, whose corners all turn the same way but
     which turns twice, is not taken for convex."""
     import numpy as np
-    from lpy_light.geometry import triangle_areas, triangle_normals, triangulate_polygon
+    from lpy_light.chamber.geometry import triangle_areas, triangle_normals, triangulate_polygon
     for n, bumpy in ((12000, 0.0), (3000, 0.3)):
         a = np.linspace(0, 2 * np.pi, n + 1)[:-1]
         r = 1 + bumpy * (np.arange(n) % 2)
@@ -138,7 +138,7 @@ def test_material_readings_sec2_and_radiance():
     """SEC2 reads trans as (R = colour, T = trans); Radiance splits C(1-s)(1-t) / s / C(1-s)t."""
     import numpy as np
 
-    from lpy_light.materials import ABSORB, DIFFUSE_R, DIFFUSE_T, SPECULAR_R, SPECULAR_T, build_material
+    from lpy_light.chamber.materials import ABSORB, DIFFUSE_R, DIFFUSE_T, SPECULAR_R, SPECULAR_T, build_material
 
     text = ("void trans t 0 0 7 0.6 0.6 0.6 0.1 0 0.5 0.2\nvoid plastic p 0 0 5 0.5 0.5 0.5 0.1 0\n"
             "void metal m 0 0 5 0.5 0.5 0.5 0.1 0\n")

@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 import trimesh
 
-from lpy_light import ratios, units
-from lpy_light.light import LightModel
+from lpy_light.chamber import ratios, units
+from lpy_light.plant.light import LightModel
 from scenes import box, lamp_rectangle, write_scene
 
 OPTICAL = Path(__file__).resolve().parents[1] / "lpy_light" / "data" / "angers-chamber" / "optical"

@@ -1,4 +1,4 @@
-"""The ``reuse`` estimator (:mod:`lpy_light.reuse`): the chamber's light stored once, gathered at each organ.
+"""The ``reuse`` estimator (:mod:`lpy_light.estimators.reuse`): the chamber's light stored once, gathered at each organ.
 
 The scene: a room whose ceiling light comes through a diffusing sheet, one wall a perfect mirror (the light it
 sends the organs comes by the gather's image draws), a bud in a pocket under a thin translucent leaf (most of
@@ -10,8 +10,8 @@ import pytest
 import trimesh
 
 from lpy_light.errors import InputError
-from lpy_light.light import LightModel
-from lpy_light.reuse import ReuseSettings, StoreKeeper, chamber_key, gather_step
+from lpy_light.plant.light import LightModel
+from lpy_light.estimators.reuse import ReuseSettings, StoreKeeper, chamber_key, gather_step
 from scenes import box, rad_polygon, write_scene
 
 ROOM = ("void plastic grey\n0\n0\n5 0.5 0.5 0.5 0 0\n\n"
@@ -144,7 +144,7 @@ def test_a_sweep_of_growth_runs_passes_the_estimator_to_each():
     reuse``, which ``grow`` accepts (and ``run`` refuses, test above)."""
     from pathlib import Path
 
-    from lpy_light import sweep
+    from lpy_light.run import sweep
     from lpy_light.cli import _parser
     rose = Path(__file__).resolve().parent.parent / "lsystems" / "rose.lpy"
     tasks = sweep.tasks_for([str(rose)], ["SEED=1..2"], ["--estimator", "reuse"])

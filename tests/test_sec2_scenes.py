@@ -16,12 +16,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from lpy_light import cli, simulate
-from lpy_light.emitters import EMIT_POINT
+from lpy_light import cli
+from lpy_light.run import simulate
+from lpy_light.chamber.emitters import EMIT_POINT
 from lpy_light.errors import InputError
-from lpy_light.obj import parse_obj, read_obj
-from lpy_light.radiance import parse_rad, read_rad
-from lpy_light.scene import build_chamber, load_scene
+from lpy_light.chamber.obj import parse_obj, read_obj
+from lpy_light.chamber.radiance import parse_rad, read_rad
+from lpy_light.chamber.scene import build_chamber, load_scene
 from scenes import box, write_scene
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -307,7 +308,7 @@ def test_obj_reader_agrees_with_trimesh(angers_dir):
     trimesh = pytest.importorskip("trimesh")
     ours = read_obj(angers_dir / "obj" / "testChamber.obj")
     mesh = trimesh.load(angers_dir / "obj" / "testChamber.obj", process=False, force="mesh")
-    from lpy_light.geometry import triangulate_polygon, triangle_areas
+    from lpy_light.chamber.geometry import triangulate_polygon, triangle_areas
     area = sum(triangle_areas(triangulate_polygon(np.reshape(p.reals, (-1, 3)))).sum() for p in ours)
     assert area == pytest.approx(mesh.area, rel=1e-9)
 
@@ -316,7 +317,7 @@ def test_obj_reader_agrees_with_trimesh(angers_dir):
 # the Angers OBJ against the Angers .rad
 def _per_identifier(prims):
     """identifier -> (materials, area, area-weighted normal, area-weighted centroid, lamps)."""
-    from lpy_light.geometry import triangle_areas, triangulate_polygon
+    from lpy_light.chamber.geometry import triangle_areas, triangulate_polygon
     out = {}
     for p in prims:
         if p.type not in ("polygon", "cylinder"):

@@ -18,13 +18,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from lpy_light import geometry as geo
-from lpy_light import simulate
+from lpy_light.chamber import geometry as geo
+from lpy_light.run import simulate
 from lpy_light.kernel.tallies import N_COUNTERS
-from lpy_light.materials import Material
-from lpy_light.organs import organ_from_mesh, plant_material
-from lpy_light.estimators import ESTIMATORS
-from lpy_light.scene import Physics, load_scene
+from lpy_light.chamber.materials import Material
+from lpy_light.plant.organs import organ_from_mesh, plant_material
+from lpy_light.estimators.registry import ESTIMATORS
+from lpy_light.chamber.scene import Physics, load_scene
 from scenes import box, rad_polygon, rectangle_to_disc_fraction, write_scene
 
 DOC = Path(__file__).resolve().parents[1] / "docs" / "stability.md"
@@ -399,7 +399,7 @@ def test_sensor_tessellation_exact_area(tmp_path):
     quad = [(quad_c[0] - h, quad_c[1] - h, 500), (quad_c[0] + h, quad_c[1] - h, 500),
             (quad_c[0] + h, quad_c[1] + h, 500), (quad_c[0] - h, quad_c[1] + h, 500)]
     chamber = _chamber(tmp_path, _room(_tf()), [disc_c + (R_TESS, 0, 0, 1)])
-    from lpy_light.sensors import Sensors, QUAD
+    from lpy_light.chamber.sensors import Sensors, QUAD
     qs = Sensors(np.array([QUAD], np.int32), np.array([quad_c], float), np.array([[0, 0, 1.0]]), np.zeros(1),
                  np.array([quad], float))
     chamber.sensors = Sensors.concat([chamber.sensors, qs])

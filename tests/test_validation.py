@@ -7,9 +7,10 @@ same comparison).  Slow (``pytest -m slow``): the 1e8-photon criterion per scene
 import numpy as np
 import pytest
 
-from lpy_light import reference, simulate, validation
-from lpy_light.radiance import read_rad
-from lpy_light.scene import load_scene
+from lpy_light.report import reference, validation
+from lpy_light.run import simulate
+from lpy_light.chamber.radiance import read_rad
+from lpy_light.chamber.scene import load_scene
 
 N_SEC2 = 999_999_936
 

@@ -36,8 +36,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
 def run(photons, reps, knobs):
     from rose import LEAF_MATERIAL, rose
 
-    from lpy_light import simulate
-    from lpy_light.light import LightModel
+    from lpy_light.run import simulate
+    from lpy_light.plant.light import LightModel
     model = LightModel("angers-12bands", photons=int(photons), plant_unit="cm", estimator="nee",
                        targets=["Leaf", "Bud"],
                        organs={"Leaf": LEAF_MATERIAL, "Internode": LEAF_MATERIAL[0], "Bud": LEAF_MATERIAL[0]})

@@ -14,8 +14,8 @@ and of its per-photon variance (next events split into own events and picks).
 import sys, os, time; sys.path.insert(0, str(__import__('pathlib').Path(__file__).resolve().parents[2] / 'benchmarks'))
 import numpy as np
 from rose import rose, LEAF_MATERIAL
-from lpy_light.light import LightModel, organ_lights
-from lpy_light import simulate
+from lpy_light.plant.light import LightModel, organ_lights
+from lpy_light.run import simulate
 model = LightModel("angers-12bands", photons=int(1.15e6), plant_unit="cm", estimator="nee", threads=2,
                    targets=["Leaf", "Bud"], organs={"Leaf": LEAF_MATERIAL, "Internode": LEAF_MATERIAL[0], "Bud": LEAF_MATERIAL[0]})
 organs = model.organs_from_meshes(rose(4, 4))
