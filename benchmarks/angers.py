@@ -80,7 +80,8 @@ def main(argv=None):
     ap.add_argument("--full", action="store_true", help="add 1e8 photons (1-3 min per scene on 2 threads)")
     ap.add_argument("--estimator", choices=tuple(ESTIMATORS), default=DEFAULT_ESTIMATOR,
                     help="nee (default: fastest to a given precision on these sensors), weighted or analog")
-    ap.add_argument("--ablations", action="store_true", help="run the physics variants (lpy_light.report.validation.VARIANTS)")
+    ap.add_argument("--ablations", action="store_true",
+                    help="run the physics variants (lpy_light.report.validation.VARIANTS)")
     ap.add_argument("--variants", nargs="+", default=None, help="with --ablations: only these variants")
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--threads", type=int, default=2)

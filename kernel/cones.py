@@ -84,7 +84,8 @@ NEAR_SHARE = 0.25
 def ray_mean(cones, total, weight, near):
     """The mean number of cone rays at a vertex whose photon has mean weight ``weight`` over the bands and whose
     cones hold ``total`` = C of its light, ``near`` whether it is near a cluster (see :data:`W_FULL`); ``cones``
-    the setting (:attr:`lpy_light.estimators.registry.NextEventSettings.cones`, :func:`lpy_light.estimators.kernel_scene.cones_for`)."""
+    the setting (:attr:`lpy_light.estimators.registry.NextEventSettings.cones`,
+    :func:`lpy_light.estimators.kernel_scene.cones_for`)."""
     return cones * min(RAY_CAP, (NEAR_SHARE if near else 1.0) * weight * total / W_FULL)
 
 

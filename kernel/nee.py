@@ -88,7 +88,8 @@ OWN_SAMPLES = 2      # an organ's own next event is the mean of this many: the n
 ZONE_HEIGHT = 4.0    # a disc whose centre is nearer to a plane than this · its radius gets a zone on it
 INV_4PI = 1.0 / (4.0 * math.pi)
 #: Picks to organs follow what a vertex can bring them: ``picks`` × min(PICK_CAP, S / S̄) at a vertex of pick
-#: share S (:func:`pick_share`), S̄ its mean over a pilot's vertices (:meth:`lpy_light.estimators.kernel_scene.KernelScene.records`).
+#: share S (:func:`pick_share`), S̄ its mean over a pilot's vertices
+# (:meth:`lpy_light.estimators.kernel_scene.KernelScene.records`).
 #: Procedural rose, last step, 1.15e6 photons (twentieth session): σ²·CPU of the p90 leaf 34 → 25-28 %²·s, of the
 #: median bud 54 → 38-43, for 5 % more shadow rays (``docs/performance.md``, "Picks where the light is").
 PICK_CAP = 4.0

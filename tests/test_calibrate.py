@@ -1,4 +1,5 @@
-"""lpy-light calibrate: a chamber fitted to a survey (lpy_light.calibration.calibrate, lpy_light.calibration.survey, lpy_light.chamber.overrides).
+"""lpy-light calibrate: a chamber fitted to a survey (lpy_light.calibration.calibrate, lpy_light.calibration.survey,
+lpy_light.chamber.overrides).
 
 The fit is checked where its answer is known: a survey made by the kernel itself with one lamp at 80 % and
 another moved 2 cm, plus 1 % noise, must give back both within their stated uncertainty (3σ), and nothing

@@ -1,5 +1,5 @@
-"""The ``field`` estimator (:mod:`lpy_light.estimators.field`): the light entering the plant's region stored once, each step's
-rays kept inside the region.
+"""The ``field`` estimator (:mod:`lpy_light.estimators.field`): the light entering the plant's region stored once, each
+step's rays kept inside the region.
 
 The scene (as ``test_reuse``'s): a room whose ceiling light comes through a diffusing sheet, one wall a perfect
 mirror (its light reaches the region through the field), a bud in a pocket under a thin translucent leaf (most of

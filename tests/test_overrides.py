@@ -1,4 +1,5 @@
-"""A scene's changes to its geometry (lpy_light.chamber.overrides): lamp outputs per band, shifts, materials, lamp_flux, base."""
+"""A scene's changes to its geometry (lpy_light.chamber.overrides): lamp outputs per band, shifts, materials,
+lamp_flux, base."""
 from __future__ import annotations
 
 import numpy as np

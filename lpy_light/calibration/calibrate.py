@@ -508,7 +508,8 @@ def scene_text(base: str, cal: Calibration, survey_path: str) -> str:
     """The fitted scene file: ``base`` plus the overrides, with a comment on where they come from."""
     t = cal.scene_overrides
     lines = ["# %s fitted to the survey %s by lpy-light calibrate" % (base, survey_path),
-             "# (calibration.json and report.md beside this file say how; lpy_light.chamber.overrides what each key means)",
+             "# (calibration.json and report.md beside this file say how; lpy_light.chamber.overrides what each key "
+             "means)",
              "base = %s" % _toml_value(base)]
     if "lamp_flux" in t:
         lines.append("# µmol s-1 the lamps emit in each band (%s)" % ", ".join(cal.bands))

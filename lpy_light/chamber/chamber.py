@@ -1,8 +1,8 @@
 """The chamber as the kernel needs it: :class:`Chamber` (triangles, materials, lamps, sensors, receivers, in scene
 units), :class:`Physics` (the modelling choices) and :func:`build_chamber` (Radiance primitives → a Chamber).
 
-Reading a scene file (which files, which unit, which tables) is :mod:`lpy_light.chamber.scene`'s; this module turns what was
-read into arrays.
+Reading a scene file (which files, which unit, which tables) is :mod:`lpy_light.chamber.scene`'s; this module turns what
+was read into arrays.
 """
 from __future__ import annotations
 

@@ -277,8 +277,8 @@ class LightField:
 
 
 def field_key(kscene, box, settings: FieldSettings, seed, flux=None) -> str:
-    """What a field depends on: the chamber and lamps (:func:`lpy_light.estimators.reuse.chamber_key`), the region and the
-    field's settings."""
+    """What a field depends on: the chamber and lamps (:func:`lpy_light.estimators.reuse.chamber_key`), the region and
+    the field's settings."""
     s = settings
     return chamber_key(kscene, box, s.store_photons, s.batches, seed, flux) + "-%d.%d.%d.%d" % (
         s.cells, s.rings, s.sectors, s.pieces)
@@ -445,8 +445,8 @@ def side_guides(el, field: LightField, rays, settings: FieldSettings, seed: int)
 
 def field_step(kscene, field: LightField, settings: FieldSettings, seed: int = 1, threads: int | None = None,
                read=None, scale=None, tol: float = 1e-4, max_passes: int = 200):
-    """One step of the plant now in ``kscene`` lit from ``field``; returns a :class:`lpy_light.estimators.result.Result` in
-    the field's photons, σ from its batches (rays per side: :func:`side_budget`)."""
+    """One step of the plant now in ``kscene`` lit from ``field``; returns a :class:`lpy_light.estimators.result.Result`
+    in the field's photons, σ from its batches (rays per side: :func:`side_budget`)."""
     from .result import Result
     t0 = time.perf_counter()
     el = region_elements(kscene, field)

@@ -1,8 +1,8 @@
 """The kernel scene: a chamber (and a plant's organs) turned into the kernel's records, built once, traced by chunks.
 
 :class:`KernelScene` holds the chamber's arrays and Embree scene, the organs of the current growth step, the
-estimator and its next-event settings (one frozen :class:`~lpy_light.estimators.registry.NextEventSettings`, changed only
-by :meth:`KernelScene.configure`), and builds the kernel's records (:meth:`KernelScene.records`).  Beside it: the
+estimator and its next-event settings (one frozen :class:`~lpy_light.estimators.registry.NextEventSettings`, changed
+only by :meth:`KernelScene.configure`), and builds the kernel's records (:meth:`KernelScene.records`).  Beside it: the
 default rules for a plant's organs (:func:`cones_for`, :func:`local_for`, :func:`organ_zone_rate`), the pilot of
 the mean pick share, and :func:`compile_kernel`.  Running it over many photons is :mod:`lpy_light.run.simulate`'s.
 """

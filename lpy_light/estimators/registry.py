@@ -1,9 +1,9 @@
 """The estimators, registered once: each one's name, what it does, and its settings as one frozen record.
 
 A run's estimator is chosen by name (``lpy-light run --estimator``, ``LightModel(estimator=...)``,
-:class:`lpy_light.estimators.kernel_scene.KernelScene`), always from :data:`ESTIMATORS`, with :data:`DEFAULT_ESTIMATOR` the default
-everywhere.  Its next-event settings are a :class:`NextEventSettings`: checked where they are built (a misspelt or
-out-of-range setting is an :class:`~lpy_light.errors.InputError` naming it), never changed in place -- a
+:class:`lpy_light.estimators.kernel_scene.KernelScene`), always from :data:`ESTIMATORS`, with :data:`DEFAULT_ESTIMATOR`
+the default everywhere.  Its next-event settings are a :class:`NextEventSettings`: checked where they are built (a
+misspelt or out-of-range setting is an :class:`~lpy_light.errors.InputError` naming it), never changed in place -- a
 changed setting is a new record (:meth:`NextEventSettings.replace`, :meth:`KernelScene.configure`).
 
 Adding an estimator: one :class:`Estimator` entry here; the kernel tells estimators apart by what the records
@@ -142,7 +142,8 @@ class Estimator:
     summary: str
     weighted: bool
     settings: NextEventSettings
-    stored: bool = False       # the chamber's light stored once, a plant's organs lit from it (lpy_light.estimators.reuse, .field)
+    stored: bool = False       # the chamber's light stored once, a plant's organs lit from it
+                               # (lpy_light.estimators.reuse, .field)
 
     @property
     def next_events(self) -> bool:

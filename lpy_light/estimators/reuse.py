@@ -329,8 +329,8 @@ def target_normals(kscene, tgt) -> np.ndarray:
 def gather_step(kscene, store: ChamberStore, samples: int = 64, seed: int = 1, threads: int | None = None,
                 paths: int = 1024, zone_samples: int | None = None, image_draws: int = 4096, read=None, scale=None,
                 parts=("gather", "paths", "segments")):
-    """One step of the plant now in ``kscene`` lit from ``store``; returns a :class:`lpy_light.estimators.result.Result` in
-    the store's photons, σ from its batches.
+    """One step of the plant now in ``kscene`` lit from ``store``; returns a :class:`lpy_light.estimators.result.Result`
+    in the store's photons, σ from its batches.
 
     Per organ target and batch: ``samples`` draws of the chamber's direct light and ``zone_samples`` (default
     ``samples``) two-step draws through a bud's zone (:func:`lpy_light.kernel.gather.gather_batch`), a quarter of

@@ -126,8 +126,8 @@ class LightModel:
         from, the first organ met tallied (:mod:`lpy_light.kernel.cones`; at a vertex whose photon's mean weight
         × the cones' share of its light is 0.5, more or fewer with it up to 4x, a quarter of that near a
         cluster; 0: picks serve those organs too).  Default None: 10 for scenes of 1,000 organ
-        targets or more (a canopy), else 0 (:func:`lpy_light.estimators.kernel_scene.cones_for`: a single plant's few hundred
-        targets gain less than the rays cost).  Leaves and other large targets
+        targets or more (a canopy), else 0 (:func:`lpy_light.estimators.kernel_scene.cones_for`: a single plant's few
+        hundred targets gain less than the rays cost).  Leaves and other large targets
         get their light from across the chamber this way; a pick is one target in n, a cone ray is not, and it
         does not aim at an organ hidden behind others.  Rose (``benchmarks/rose.py --photons 1.15e6``): leaves'
         p90 σ 2.6 → 1.5 %, buds' median 4.4 → 3.3 %, a step 4.1 → 6.3 s; 16 roses (``benchmarks/canopy.py``):
@@ -138,9 +138,9 @@ class LightModel:
         next events and picks (:func:`lpy_light.kernel.cones.local_events`; 0: own events and picks serve
         them; at a vertex whose photon's mean weight is 0.5, more or fewer with it up to 4x).  Default None: 8
         for scenes of 1,000 organ targets or more (a canopy), else 0
-        (:func:`lpy_light.estimators.kernel_scene.local_for`).  Amid a canopy a vertex on a leaf is near dozens of leaves; rays
-        meet those it sees, in proportion to its light.  16 roses: the cost to leaves' p90 3 % 67 → 48 CPU s (12
-        cone rays); on a single rose the own events serve the few leaves around a vertex as well or better.
+        (:func:`lpy_light.estimators.kernel_scene.local_for`).  Amid a canopy a vertex on a leaf is near dozens of
+        leaves; rays meet those it sees, in proportion to its light.  16 roses: the cost to leaves' p90 3 % 67 → 48 CPU
+        s (12 cone rays); on a single rose the own events serve the few leaves around a vertex as well or better.
     lamp_scale : float or mapping
         Multiplies the lamps' photon flux: a number (dimmer or brighter lamps, all bands), or
         ``{"LO-HI": factor}`` for the bands lying within LO-HI nm (``{"700-800": 2.0}``: a far-red
@@ -152,8 +152,8 @@ class LightModel:
         ``"nee"`` (default): every step traces the chamber's photons again, next events to the organs from every
         vertex (:mod:`lpy_light.kernel.nee`).  ``"reuse"``: the chamber's light is traced once into a store with
         the plant in place and gathered at every organ each step through the current plant, ``photons`` then
-        unused (:mod:`lpy_light.estimators.reuse`; every organ is a target; ``docs/performance.md`` says when to use which).
-        ``"field"``: the light entering the plant's region is traced once into a field; each step's rays stay in
+        unused (:mod:`lpy_light.estimators.reuse`; every organ is a target; ``docs/performance.md`` says when to use
+        which). ``"field"``: the light entering the plant's region is traced once into a field; each step's rays stay in
         the region and read it where they leave (:mod:`lpy_light.estimators.field`; every organ is a target).
     reuse : mapping or None
         With ``estimator="reuse"``: its settings (:class:`lpy_light.estimators.reuse.ReuseSettings`: ``store_photons``,

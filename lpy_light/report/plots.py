@@ -153,7 +153,8 @@ def sensor_maps(out_dir, centers, normals, panels, prefix: str = "map", title: s
 def profile_plots(out_dir, rows, columns=(), title: str = "") -> list:
     """One PNG per sensor plane, ``profile_<plane>.png``: the ratio to a reference (mean 1) along the
     plane's rows and, when given, its columns, with ±1σ bars.  ``rows``, ``columns``: lists of
-    :class:`lpy_light.report.reference.Profile` (from :func:`lpy_light.report.reference.row_profiles`); returns the paths."""
+    :class:`~lpy_light.report.reference.Profile` (from :func:`~lpy_light.report.reference.row_profiles`); returns
+    the paths."""
     plt = require_matplotlib()
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)

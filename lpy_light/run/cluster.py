@@ -141,8 +141,8 @@ def dask_client(address: str, threads: int | None = None):
     ``local[:N]``: a ``LocalCluster`` of N worker processes with ``threads`` threads each (default:
     the cores shared out), every socket on 127.0.0.1 (its HTTP server too, on a free port).
     Otherwise the scheduler at ``address`` (or in the scheduler file ``address``); ``threads``
-    must then be None (workers have their own: ``dask worker --nthreads``).  Raises :class:`~lpy_light.errors.InputError`
-    naming the address when it cannot be reached.
+    must then be None (workers have their own: ``dask worker --nthreads``).  Raises
+    :class:`~lpy_light.errors.InputError` naming the address when it cannot be reached.
     """
     distributed = _require_distributed()
     for name in ("distributed", "distributed.client", "distributed.scheduler", "distributed.nanny",
@@ -286,7 +286,8 @@ def build_seconds() -> list:
 
 # ------------------------------------------------------------------------------------------
 class DaskChunks:
-    """:func:`lpy_light.run.simulate.run`'s executor on a Dask cluster (see :class:`lpy_light.run.simulate.LocalThreads`).
+    """:func:`lpy_light.run.simulate.run`'s executor on a Dask cluster (see
+    :class:`lpy_light.run.simulate.LocalThreads`).
 
     ``client``: a ``distributed.Client`` (:func:`dask_client`).  Its ``threads`` (the workers'
     threads together, at ``open``) is how many tasks run at once; :func:`simulate.run` keeps twice
