@@ -10,11 +10,16 @@ standard error, the mean difference of the buds' R:FR, and the share of organs w
 ``--weighted P``: also the ``weighted`` estimator (no next events: every photon's own hits) at P photons against
 the same reference: a check of the reference itself that shares none of its next-event machinery.
 
+``--grey R T`` and ``--lamp-flux F``: a scene without the Angers optical tables or a lamp spectrum (``chambre2``):
+every organ grey, the lamps' flux given (any value: biases are relative), and its one band's ppfd in PAR's place.
+
     .venv/bin/python benchmarks/field.py [--reference 1e7] [--full 3e5 1.15e6 4e6] [--stores 2e6 8e6]
                                          [--rays 256 1024 4096] [--cells 8] [--weighted 6.4e7]
                                          [--scene chambre2] [--position X Y Z]
                                          [--reference-cache runs/field_ref.npz]
                                          [--chart docs/efficiency/field.png] [--csv docs/efficiency/field.csv]
+    .venv/bin/python benchmarks/field.py --scene chambre2 --position 160 35 87 --grey 0.2 0.2 --lamp-flux 1 \
+                                         --full 1.15e6 --stores 8e6 --rays 1024 4096        # a chamber not tuned on
     .venv/bin/python benchmarks/field.py --replot docs/efficiency/field.csv --chart docs/efficiency/field.png
     .venv/bin/python benchmarks/field.py --full --stores 2e6 --rays 1024 --spread 8 --reference-cache runs/field_ref.npz
 """
@@ -67,6 +72,11 @@ def main():
     ap.add_argument("--scene", default="angers-12bands", help="the chamber (a built-in name or a .toml)")
     ap.add_argument("--position", type=float, nargs=3, default=None, metavar=("X", "Y", "Z"),
                     help="where the rose stands (chamber units; default: the scene's plant_position)")
+    ap.add_argument("--grey", type=float, nargs=2, default=None, metavar=("R", "T"),
+                    help="every organ of reflectance R and transmittance T in every band (a scene without the "
+                         "Angers optical tables: chambre2)")
+    ap.add_argument("--lamp-flux", type=float, nargs="+", default=None, metavar="F",
+                    help="the lamps' µmol/s per band where the scene has no spectrum (chambre2: any, for biases)")
     ap.add_argument("--reference-cache", default=None, metavar="FILE.npz")
     ap.add_argument("--csv", default=None)
     ap.add_argument("--chart", default=None)
@@ -76,8 +86,10 @@ def main():
         replot(args.replot, args.chart)
         return
 
-    model, organs = plant_model(args.stage, args.stages, args.reference, scene=args.scene, position=args.position)
-    where = "%s at %s" % (args.scene, "its plant_position" if args.position is None else args.position)
+    model, organs = plant_model(args.stage, args.stages, args.reference, scene=args.scene, position=args.position,
+                                grey=args.grey, lamp_flux=args.lamp_flux)
+    where = "%s at %s%s" % (args.scene, "its plant_position" if args.position is None else args.position,
+                            "" if args.grey is None else ", grey organs %s" % args.grey)
     model.run(organs, photons=20_000)                 # compile, prune, pilots: not timed
     cache = Path(args.reference_cache) if args.reference_cache else None
     names = ("module", "par", "par_s", "rfr", "rfr_s")
@@ -110,7 +122,7 @@ def main():
                 "store_s": 0.0, **precision(tab), **bias(tab, ref), "within": within(tab, ref)})
     if args.weighted:
         wmodel, _ = plant_model(args.stage, args.stages, args.weighted, estimator="weighted", scene=args.scene,
-                                position=args.position)
+                                position=args.position, grey=args.grey, lamp_flux=args.lamp_flux)
         wmodel.flux, wmodel.flux_std = model.flux, model.flux_std
         step, wall, cpu = timed(lambda: wmodel.run(organs))
         tab = table(step.organs, organs)

@@ -42,20 +42,31 @@ ORGANS = {"Leaf": LEAF_MATERIAL, "Internode": LEAF_MATERIAL[0], "Bud": LEAF_MATE
 
 
 def plant_model(stage, stages, photons, estimator="nee", targets=("Leaf", "Bud"), scene="angers-12bands",
-                position=None):
-    model = LightModel(scene, photons=int(photons), plant_unit="cm", organs=ORGANS, threads=2,
-                       estimator=estimator, targets=targets, position=position)
-    organs = model.organs_from_meshes({k: (m, mat, mod) for k, (m, mat, mod) in rose(stage, stages).items()})
+                position=None, grey=None, lamp_flux=None):
+    """The rose's last stage in ``scene``; ``grey`` (R, T): every organ of that reflectance and transmittance in
+    every band (a scene without the Angers optical tables, e.g. ``chambre2``), else the Angers leaf tables;
+    ``lamp_flux``: the lamps' µmol/s per band where the scene cannot tell (no spectrum: any value, for biases)."""
+    grey = None if grey is None else {"reflectance": float(grey[0]), "transmittance": float(grey[1])}
+    model = LightModel(scene, photons=int(photons), plant_unit="cm", organs=ORGANS if grey is None else
+                       {k: grey for k in ORGANS}, threads=2, estimator=estimator, targets=targets, position=position,
+                       lamp_flux=lamp_flux)
+    organs = model.organs_from_meshes({k: (m, mat if grey is None else grey, mod)
+                                       for k, (m, mat, mod) in rose(stage, stages).items()})
     return model, organs
 
 
 def table(lights, organs):
-    """Per organ (in the organs' order): module, PAR, its σ, R:FR, its σ."""
+    """Per organ (in the organs' order): module, PAR, its σ, R:FR, its σ (a scene whose bands give no PAR, e.g.
+    ``chambre2``'s one unlabelled band: the first band's ppfd in its place, R:FR NaN)."""
     rows = [lights[o.key] for o in organs]
 
     def column(name):
         return np.array([np.nan if getattr(l, name) is None else getattr(l, name) for l in rows], float)
-    return (np.array([l.module for l in rows]), column("par"), column("par_std"), column("rfr"), column("rfr_std"))
+    par, par_s = column("par"), column("par_std")
+    if np.isnan(par).all():
+        par = np.array([l.ppfd[0] for l in rows], float)
+        par_s = np.array([l.ppfd_std[0] for l in rows], float)
+    return np.array([l.module for l in rows]), par, par_s, column("rfr"), column("rfr_std")
 
 
 def precision(tab):
@@ -76,8 +87,9 @@ def bias(tab, ref):
         se = math.sqrt(np.sum((par_s[k] ** 2 + rpar_s[k] ** 2) / rpar[k] ** 2)) / k.sum()
         out[kind.lower() + "_bias"], out[kind.lower() + "_bias_se"] = float(np.mean(rel)), se
     k = (mod == "Bud") & np.isfinite(rfr) & np.isfinite(rrfr)
-    out["bud_rfr_bias"] = float(np.mean(rfr[k] - rrfr[k]))
-    out["bud_rfr_bias_se"] = float(math.sqrt(np.sum(rfr_s[k] ** 2 + rrfr_s[k] ** 2)) / k.sum())
+    out["bud_rfr_bias"] = float(np.mean(rfr[k] - rrfr[k])) if k.any() else float("nan")
+    out["bud_rfr_bias_se"] = float(math.sqrt(np.sum(rfr_s[k] ** 2 + rrfr_s[k] ** 2)) / k.sum()) if k.any() \
+        else float("nan")
     ok = (rpar > 0) & (par > 0)
     z = (par[ok] - rpar[ok]) / np.hypot(par_s[ok], rpar_s[ok])
     out["within_4sigma"] = float(np.mean(np.abs(z) < 4))

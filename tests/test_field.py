@@ -12,7 +12,9 @@ import pytest
 import trimesh
 
 from lpy_light.errors import InputError
-from lpy_light.estimators.field import FieldSettings, clip_polygon, face_grid, field_step
+from lpy_light.estimators.field import FieldSettings, clear_of_lamps, clip_polygon, face_grid, field_step, \
+    lamp_bounds
+from lpy_light.chamber.emitters import EmitterBuilder
 from lpy_light.kernel.field import draw_direction, field_bin, guide_tables, sphere_bin, stratified_directions
 from lpy_light.kernel.rng import seed_stream
 from lpy_light.plant.light import LightModel
@@ -207,3 +209,31 @@ def test_a_guide_points_where_the_field_brings_light():
     # a side facing +x sees the top only through directions that also point up
     share_x = np.diff(np.concatenate([[0.0], cdf[1]]))
     assert share_x[z_band < 8].sum() == 0.0 and share_x.sum() == pytest.approx(1.0)
+
+
+def test_the_region_is_cut_clear_of_every_lamp():
+    """Light emitted inside the region never crosses its faces, so the field would miss it (a lamp hung low beside
+    the plant, or under the bench it stands on, inside the grown box).  A lamp under the organs moves the bottom
+    face halfway up to them; one beside them, the side face that keeps the most of the region; one outside the box
+    changes nothing; one among the organs is refused."""
+    lo, hi = np.array([20.0, 20.0, 0.0]), np.array([80.0, 80.0, 100.0])
+    box = np.array([0.0, 0.0, -20.0, 100.0, 100.0, 120.0])
+    under = np.array([[[50.0, 50.0, -6.0], [50.0, 50.0, -4.0]]])
+    cut = clear_of_lamps(box, lo, hi, under)
+    assert np.allclose(cut, [0, 0, -2, 100, 100, 120])
+    beside = np.array([[[90.0, 10.0, 40.0], [92.0, 12.0, 42.0]]])     # below lo[1] and above hi[0]: keeps more
+    cut = clear_of_lamps(box, lo, hi, beside)
+    assert np.allclose(cut, [0, 0, -20, 85, 100, 120])
+    assert np.all(cut[:3] <= lo) and np.all(cut[3:] >= hi)
+    assert np.array_equal(clear_of_lamps(box, lo, hi, np.array([[[0.0, 0.0, 200.0], [1.0, 1.0, 201.0]]])), box)
+    with pytest.raises(InputError, match="among the plant's organs"):
+        clear_of_lamps(box, lo, hi, np.array([[[50.0, 50.0, 50.0], [50.0, 50.0, 50.0]]]))
+
+
+def test_lamp_bounds_hold_each_kind_of_lamp():
+    b = EmitterBuilder(lamps="lambertian")
+    b.point([1.0, 2.0, 3.0], 1.0, "point")
+    b.sphere([0.0, 0.0, 10.0], 2.0, 1.0, "ball")
+    bounds = lamp_bounds(b.build())
+    assert np.allclose(bounds[0], [[1, 2, 3], [1, 2, 3]])
+    assert np.allclose(bounds[1], [[-2, -2, 8], [2, 2, 12]])

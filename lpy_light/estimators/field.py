@@ -5,7 +5,8 @@ region around the plant.  Here that is traced once into a :class:`LightField` (:
 (:func:`field_step`) never leaves the region:
 
 1. **The region** (:func:`plant_region`): a box around the plant's organs (their bounds grown by
-   :attr:`FieldSettings.growth` of their size and :attr:`FieldSettings.margin` metres each side).  What of the
+   :attr:`FieldSettings.growth` of their size and :attr:`FieldSettings.margin` metres each side), cut back clear
+   of every lamp (:func:`clear_of_lamps`: light emitted inside it would never cross a face).  What of the
    chamber lies inside it (the table top under the plant, a pot) belongs to the region: its *pieces*, the chamber's
    triangles clipped to a grid of the box (:func:`chamber_pieces`).
 2. **The field**: the light entering the region through its six faces, by face, cell on the face, direction
@@ -47,6 +48,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..kernel import embree
+from ..kernel.emission import EMIT_CYLINDER, EMIT_LINE, EMIT_SPHERE, EMIT_TRIANGLE
 from ..kernel.field import (add_crossings, bin_crossings, cast_rays, guide_tables, read_field, side_links, side_sums,
                             solve_passes)
 from ..kernel.records import (ABSORB, DIFFUSE_R, DIFFUSE_T, REPLAY_STORE, SPECULAR_R, SPECULAR_T, START_W, VPL_W,
@@ -156,13 +158,60 @@ def field_settings(spec) -> FieldSettings:
 
 
 # -- the region -----------------------------------------------------------------------------------------------
-def plant_region(organs, metres_per_unit: float, settings: FieldSettings) -> np.ndarray:
+def plant_region(organs, metres_per_unit: float, settings: FieldSettings, lamps=None) -> np.ndarray:
     """The region around ``organs`` (chamber units): their bounds grown by ``settings.growth`` of their size and
-    ``settings.margin`` metres each side; (6,) lo, hi."""
+    ``settings.margin`` metres each side, then cut back clear of every lamp (``lamps``: (E, 2, 3) bounds,
+    :func:`lamp_bounds`; :func:`clear_of_lamps`); (6,) lo, hi."""
     pts = np.concatenate([np.asarray(o.triangles, float).reshape(-1, 3) for o in organs])
     lo, hi = pts.min(axis=0), pts.max(axis=0)
     grow = settings.growth * (hi - lo) + settings.margin / metres_per_unit
-    return np.concatenate([lo - grow, hi + grow])
+    box = np.concatenate([lo - grow, hi + grow])
+    return box if lamps is None else clear_of_lamps(box, lo, hi, lamps)
+
+
+def lamp_bounds(emitters) -> np.ndarray:
+    """The bounds of each lamp element (:class:`lpy_light.chamber.emitters.Emitters`), (E, 2, 3) lo, hi."""
+    kind, data = np.asarray(emitters.kind), np.asarray(emitters.data, float)
+    out = np.empty((len(kind), 2, 3))
+    for e, (k, d) in enumerate(zip(kind, data)):
+        if k == EMIT_TRIANGLE:
+            pts, r = d, 0.0
+        elif k == EMIT_SPHERE:
+            pts, r = d[:1], d[1, 0]
+        elif k == EMIT_CYLINDER:
+            pts, r = d[:2], d[2, 0]
+        else:                                    # a line or a point lamp: the segment d[0] → d[1]
+            pts, r = d[:2] if k == EMIT_LINE else d[:1], 0.0
+        out[e, 0], out[e, 1] = pts.min(axis=0) - r, pts.max(axis=0) + r
+    return out
+
+
+def clear_of_lamps(box, lo, hi, lamps) -> np.ndarray:
+    """``box`` (6,) with every lamp (``lamps`` (E, 2, 3)) that reaches into it cut off: the region's field is the
+    light that enters through its faces, so light emitted inside it would be missed (a lamp hung low beside the
+    plant, or under the bench it stands on).  Each such lamp is cut off by the face
+    moved halfway between it and the organs' bounds ``lo``, ``hi`` (3,) each, on the side that keeps the most of
+    the region.  Raises :class:`InputError` where a lamp lies within the organs' own bounds."""
+    box = np.array(box, float)
+    while True:
+        hit = [e for e in range(len(lamps)) if np.all(lamps[e, 1] > box[:3]) and np.all(lamps[e, 0] < box[3:])]
+        if not hit:
+            return box
+        l_lo, l_hi = lamps[hit[0]]
+        cuts = []                                    # (volume kept, axis, side, new bound)
+        for a in range(3):
+            if l_hi[a] < lo[a]:
+                cut = box.copy()
+                cut[a] = 0.5 * (l_hi[a] + lo[a])
+                cuts.append((np.prod(cut[3:] - cut[:3]), a, cut))
+            if l_lo[a] > hi[a]:
+                cut = box.copy()
+                cut[3 + a] = 0.5 * (l_lo[a] + hi[a])
+                cuts.append((np.prod(cut[3:] - cut[:3]), a, cut))
+        if not cuts:
+            raise InputError("a lamp (bounds %s to %s) lies among the plant's organs: the field estimator lights "
+                             "a region that holds no lamp; use estimator 'nee'" % (l_lo.tolist(), l_hi.tolist()))
+        box = max(cuts, key=lambda c: c[0])[2]
 
 
 def face_grid(box, cells: int):
@@ -292,7 +341,9 @@ def build_field(kscene, settings: FieldSettings, seed: int = 1, threads: int | N
     ``threads``."""
     t0 = time.perf_counter()
     mpu = kscene.chamber.metres_per_unit
-    box = plant_region(kscene.organs, mpu, settings) if box is None else np.asarray(box, float)
+    if box is None:
+        box = plant_region(kscene.organs, mpu, settings, lamp_bounds(kscene.chamber.emitters))
+    box = np.asarray(box, float)
     grid, face0 = face_grid(box, settings.cells)
     n_bins = int((grid[:, 0] * grid[:, 1]).sum()) * settings.rings * settings.sectors
     S, B = settings.batches, kscene.n_bands
