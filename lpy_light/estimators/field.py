@@ -5,8 +5,9 @@ region around the plant.  Here that is traced once into a :class:`LightField` (:
 (:func:`field_step`) never leaves the region:
 
 1. **The region** (:func:`plant_region`): a box around the plant's organs (their bounds grown by
-   :attr:`FieldSettings.growth` of their size and :attr:`FieldSettings.margin` metres each side), cut back clear
-   of every lamp (:func:`clear_of_lamps`: light emitted inside it would never cross a face).  What of the
+   :attr:`FieldSettings.growth` of their size and :attr:`FieldSettings.margin` metres each side), cut back to a
+   wall that crosses it whole (:func:`inside_walls`) and clear of every lamp (:func:`clear_of_lamps`: light
+   emitted inside it would never cross a face).  What of the
    chamber lies inside it (the table top under the plant, a pot) belongs to the region: its *pieces*, the chamber's
    triangles clipped to a grid of the box (:func:`chamber_pieces`).
 2. **The field**: the light entering the region through its six faces, by face, cell on the face, direction
@@ -158,15 +159,64 @@ def field_settings(spec) -> FieldSettings:
 
 
 # -- the region -----------------------------------------------------------------------------------------------
-def plant_region(organs, metres_per_unit: float, settings: FieldSettings, lamps=None) -> np.ndarray:
+def plant_region(organs, metres_per_unit: float, settings: FieldSettings, lamps=None, chamber=None) -> np.ndarray:
     """The region around ``organs`` (chamber units): their bounds grown by ``settings.growth`` of their size and
-    ``settings.margin`` metres each side, then cut back clear of every lamp (``lamps``: (E, 2, 3) bounds,
-    :func:`lamp_bounds`; :func:`clear_of_lamps`); (6,) lo, hi."""
+    ``settings.margin`` metres each side, then cut back to the walls, floor or ceiling that cross it whole
+    (``chamber``: its triangles (T, 3, 3); :func:`inside_walls`) and clear of every lamp (``lamps``: (E, 2, 3)
+    bounds, :func:`lamp_bounds`; :func:`clear_of_lamps`); (6,) lo, hi."""
     pts = np.concatenate([np.asarray(o.triangles, float).reshape(-1, 3) for o in organs])
     lo, hi = pts.min(axis=0), pts.max(axis=0)
     grow = settings.growth * (hi - lo) + settings.margin / metres_per_unit
     box = np.concatenate([lo - grow, hi + grow])
+    if chamber is not None:
+        box = inside_walls(box, lo, hi, chamber)
     return box if lamps is None else clear_of_lamps(box, lo, hi, lamps)
+
+
+def inside_walls(box, lo, hi, verts, samples: int = 16) -> np.ndarray:
+    """``box`` (6,) cut back to the nearest plane of chamber triangles (``verts`` (T, 3, 3)) square to an axis that
+    crosses the whole box between the organs' bounds ``lo``, ``hi`` (3,) each and one of its faces (a wall the
+    plant stands against, the floor, the ceiling), the face put just inside it.  A face beyond a wall reads no
+    light there, and a cell of it partly behind the wall would read the mean of its lit and unlit parts: the light
+    a ray reads where it leaves by the lit part would be too low.  A plane is taken as crossing the box where its
+    triangles hold every point of a ``samples`` × ``samples`` grid over the box's section; planes within 2 % of
+    the organs' size of their bounds (the table a plant stands on) stay inside, as pieces."""
+    box = np.array(box, float)
+    e1, e2 = verts[:, 1] - verts[:, 0], verts[:, 2] - verts[:, 0]
+    n = np.cross(e1, e2)
+    n /= np.maximum(np.linalg.norm(n, axis=1), 1e-300)[:, None]
+    gap = 0.02 * np.maximum(hi - lo, 1e-12)
+    for a in range(3):
+        a1, a2 = (a + 1) % 3, (a + 2) % 3
+        square = np.abs(n[:, a]) > 1.0 - 1e-9
+        c = verts[:, 0, a]
+        u, v = np.meshgrid(np.linspace(box[a1], box[3 + a1], samples + 2)[1:-1],
+                           np.linspace(box[a2], box[3 + a2], samples + 2)[1:-1])
+        grid = np.stack([u.ravel(), v.ravel()], axis=1)
+        for side in (0, 1):
+            between = square & ((c > box[a]) & (c < lo[a] - gap[a]) if side == 0 else
+                                (c < box[3 + a]) & (c > hi[a] + gap[a]))
+            for plane in sorted(set(c[between]), reverse=side == 0):       # the nearest the organs first
+                tri = verts[between & (np.abs(c - plane) <= 1e-9 * max(1.0, abs(plane)))][:, :, [a1, a2]]
+                if _covered(grid, tri).all():
+                    inset = 1e-3 * (box[3 + a] - box[a])     # beyond a new ray's offset off the wall
+                    box[a + 3 * side] = plane + inset if side == 0 else plane - inset
+                    break
+    return box
+
+
+def _covered(points, tri) -> np.ndarray:
+    """Which of ``points`` (k, 2) lie in one of the triangles ``tri`` (t, 3, 2) (edges included), (k,) bool."""
+    out = np.zeros(len(points), bool)
+    for t in tri:
+        d = (t[1, 0] - t[0, 0]) * (t[2, 1] - t[0, 1]) - (t[2, 0] - t[0, 0]) * (t[1, 1] - t[0, 1])
+        if d == 0.0:
+            continue
+        px, py = points[:, 0] - t[0, 0], points[:, 1] - t[0, 1]
+        b1 = (px * (t[2, 1] - t[0, 1]) - py * (t[2, 0] - t[0, 0])) / d
+        b2 = (py * (t[1, 0] - t[0, 0]) - px * (t[1, 1] - t[0, 1])) / d
+        out |= (b1 >= -1e-9) & (b2 >= -1e-9) & (b1 + b2 <= 1.0 + 1e-9)
+    return out
 
 
 def lamp_bounds(emitters) -> np.ndarray:
@@ -342,7 +392,8 @@ def build_field(kscene, settings: FieldSettings, seed: int = 1, threads: int | N
     t0 = time.perf_counter()
     mpu = kscene.chamber.metres_per_unit
     if box is None:
-        box = plant_region(kscene.organs, mpu, settings, lamp_bounds(kscene.chamber.emitters))
+        box = plant_region(kscene.organs, mpu, settings, lamp_bounds(kscene.chamber.emitters),
+                           kscene.tri_verts[:kscene.n_chamber_triangles])
     box = np.asarray(box, float)
     grid, face0 = face_grid(box, settings.cells)
     n_bins = int((grid[:, 0] * grid[:, 1]).sum()) * settings.rings * settings.sectors
