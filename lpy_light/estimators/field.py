@@ -239,16 +239,16 @@ def lamp_bounds(emitters) -> np.ndarray:
 def clear_of_lamps(box, lo, hi, lamps) -> np.ndarray:
     """``box`` (6,) with every lamp (``lamps`` (E, 2, 3)) that reaches into it cut off: the region's field is the
     light that enters through its faces, so light emitted inside it would be missed (a lamp hung low beside the
-    plant, or under the bench it stands on).  Each such lamp is cut off by the face
-    moved halfway between it and the organs' bounds ``lo``, ``hi`` (3,) each, on the side that keeps the most of
-    the region.  Raises :class:`InputError` where a lamp lies within the organs' own bounds."""
+    plant, or under the bench it stands on).  Each such lamp is cut off by the face moved halfway between it and
+    the organs' bounds ``lo``, ``hi`` (3,) each, on the side that keeps the most of the region.  Raises
+    :class:`InputError` where a lamp lies within the organs' own bounds."""
     box = np.array(box, float)
     while True:
         hit = [e for e in range(len(lamps)) if np.all(lamps[e, 1] > box[:3]) and np.all(lamps[e, 0] < box[3:])]
         if not hit:
             return box
         l_lo, l_hi = lamps[hit[0]]
-        cuts = []                                    # (volume kept, axis, side, new bound)
+        cuts = []                                    # (volume kept, axis, the box so cut)
         for a in range(3):
             if l_hi[a] < lo[a]:
                 cut = box.copy()
