@@ -43,7 +43,11 @@ CONTEXT = 192         # struct RTCRayQueryContext, followed by our candidate lis
 CAND_COUNT = CONTEXT + 64
 CAND = CAND_COUNT + 8  # (uint32 primID, float32 t) pairs
 CAND_CAP = 512
-SCRATCH_BYTES = CAND + 8 * CAND_CAP + 64
+# the ray log (kernel.raylog; 0: none): each ray cast is appended as 8 float32 (origin, direction, tfar, kind)
+LOG = CAND + 8 * CAND_CAP + 64      # u64: address of the log's rows
+LOG_COUNT = LOG + 8                 # u64: address of the rows' counter (int64), shared by a run's scratch blocks
+LOG_CAP = LOG + 16                  # i64: rows the log holds (rays past it are counted, not written)
+SCRATCH_BYTES = LOG + 64
 
 # offsets inside RTCRayHit
 ORG, TNEAR, DIR, TFAR, MASK, FLAGS = 0, 12, 16, 32, 36, 44
@@ -255,4 +259,6 @@ def new_scratch() -> np.ndarray:
     args[0] = 0                     # RTC_RAY_QUERY_FLAG_INCOHERENT
     args[1] = FEATURE_ALL
     block[ARGS + 8:ARGS + 16].view(np.uint64)[0] = base + CONTEXT   # context*
+    from . import raylog
+    raylog.attach(block[LOG:LOG + 24].view(np.uint64))
     return block

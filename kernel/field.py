@@ -24,9 +24,10 @@ import math
 import numpy as np
 from numba import njit
 
-from .embree import ARGS, GEOM_ID, INVALID_ID, PRIM_ID, RAYHIT
-from .ptr import call_ptr3, load_u32
-from .rays import set_ray
+from .embree import GEOM_ID, INVALID_ID, PRIM_ID, RAYHIT
+from .ptr import load_u32
+from .raylog import RAY_FIELD
+from .rays import cast, set_ray
 from .rng import seed_stream, uniform
 from .sampling import cosine_hemisphere, search_cdf
 
@@ -301,7 +302,6 @@ def cast_rays(region, sides, bins, guides, first, last, seed, bounces, groups, s
     out, ray_tri, through = ends
     state = np.zeros(1, np.uint64)
     rh = scratch + RAYHIT
-    args = scratch + ARGS
     n_b = reflect.shape[1]
     lattice = np.empty((0, 2))
     cosine = np.empty(0, np.bool_)
@@ -342,7 +342,7 @@ def cast_rays(region, sides, bins, guides, first, last, seed, bounces, groups, s
             code = NOTHING
             for bounce in range(bounces + 1):
                 set_ray(scratch, ox, oy, oz, dx, dy, dz, _TFAR_MAX)
-                call_ptr3(intersect, scene, rh, args)
+                cast(intersect, scene, scratch, RAY_FIELD)
                 gid = load_u32(rh + GEOM_ID)
                 if gid == INVALID_ID:
                     code = -1 - exit_bin(box, grid, face0, rings, sectors, ox, oy, oz, dx, dy, dz)

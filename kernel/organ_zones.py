@@ -31,9 +31,10 @@ ZONE_BY_AREA = 0.2    # the rest drawn on the zone's surface: this share uniform
                       # angle seen from the target's centre
 ZONE_WALK = 50        # short legs a zone event's vertex walks on inside the zone at most (zone_walk): a photon in
                       # an open bud's tube bounces 20 times and more there (rose-simple4, far red)
-from .embree import GEOM_ID, INVALID_ID, PRIM_ID, RAYHIT, ARGS
-from .ptr import call_ptr3, load_u32
-from .rays import first_hit, magnitude, set_ray
+from .embree import GEOM_ID, INVALID_ID, PRIM_ID, RAYHIT
+from .ptr import load_u32
+from .raylog import RAY_TARGET
+from .rays import cast, first_hit, magnitude, set_ray
 from .records import DIFFUSE_R, DIFFUSE_T, T_MESH2, V_ISOTROPIC, V_LAMBERT, V_SURFACE, OrganZones, Vertex
 from .targets import cluster_sums
 from .rng import uniform
@@ -255,7 +256,7 @@ def zone_event_to(v, pick, left, stat, geo, mat, sens, tgt, organs, photon, stat
         set_ray(scratch, vx + side * eps * nx, vy + side * eps * ny, vz + side * eps * nz, dx, dy, dz,
                 dist * (1.0 + 2.0 ** -10) + 4.0 * eps)
         stats.counters[C_SHADOW] += 1
-        call_ptr3(geo.intersect, geo.scene, rh, scratch + ARGS)
+        cast(geo.intersect, geo.scene, scratch, RAY_TARGET)
         gid = load_u32(rh + GEOM_ID)
         if gid == INVALID_ID or load_u32(rh + PRIM_ID) + geo.geom_offset[gid] != k:
             return n_out                               # something else first: no such vertex y

@@ -11,9 +11,11 @@ tie returns.  Lengths in scene units; directions unit vectors.
 """
 import math
 
-from .embree import ARGS, CAND_COUNT, DIR, GEOM_ID, HIT_U, HIT_V, INVALID_ID, MASK, ORG, PRIM_ID, RAYHIT, TFAR, TNEAR
+from .embree import (ARGS, CAND_COUNT, DIR, GEOM_ID, HIT_U, HIT_V, INVALID_ID, LOG, LOG_CAP, LOG_COUNT, MASK, ORG,
+                     PRIM_ID, RAYHIT, TFAR, TNEAR)
 from .jit import helper
-from .ptr import call_ptr3, load_f32, load_u32, store_f32, store_i64, store_u32
+from .ptr import call_ptr3, load_f32, load_i64, load_u32, load_u64, store_f32, store_i64, store_u32
+from .raylog import RAY_SHADOW, RAY_TARGET
 from .rng import uniform
 
 
@@ -39,10 +41,35 @@ def set_ray(scratch, ox, oy, oz, dx, dy, dz, tfar):
 
 
 @helper
+def _log_ray(scratch, log, kind):
+    """Append the ray in the scratch block to the ray log at address ``log`` (:mod:`kernel.raylog`)."""
+    counter = load_u64(scratch + LOG_COUNT)
+    n = load_i64(counter)
+    store_i64(counter, n + 1)
+    if n < load_i64(scratch + LOG_CAP):
+        row, rh = log + 32 * n, scratch + RAYHIT
+        for j in range(3):
+            store_f32(row + 4 * j, load_f32(rh + ORG + 4 * j))
+            store_f32(row + 12 + 4 * j, load_f32(rh + DIR + 4 * j))
+        store_f32(row + 24, load_f32(rh + TFAR))
+        store_f32(row + 28, float(kind))
+
+
+@helper
+def cast(fn, scene, scratch, kind):
+    """Cast the ray set in the scratch block: ``fn`` is ``rtcIntersect1`` or ``rtcOccluded1``'s address, ``kind``
+    what the ray is for (:data:`kernel.raylog.KINDS`, logged where a ray log is open)."""
+    log = load_u64(scratch + LOG)
+    if log != 0:
+        _log_ray(scratch, log, kind)
+    call_ptr3(fn, scene, scratch + RAYHIT, scratch + ARGS)
+
+
+@helper
 def visible(geo, scratch, ox, oy, oz, dx, dy, dz, tfar):
     """Is the segment from o along unit d, up to tfar, free of surfaces?  One ``rtcOccluded1`` call."""
     set_ray(scratch, ox, oy, oz, dx, dy, dz, tfar)
-    call_ptr3(geo.occluded, geo.scene, scratch + RAYHIT, scratch + ARGS)
+    cast(geo.occluded, geo.scene, scratch, RAY_SHADOW)
     return load_f32(scratch + RAYHIT + TFAR) >= 0.0
 
 
@@ -156,7 +183,7 @@ def first_hit(geo, scratch, ox, oy, oz, dx, dy, dz, tfar, state):
     :func:`hit_point`), coincident surfaces picked as a photon picks among them."""
     rh = scratch + RAYHIT
     set_ray(scratch, ox, oy, oz, dx, dy, dz, tfar)
-    call_ptr3(geo.intersect, geo.scene, rh, scratch + ARGS)
+    cast(geo.intersect, geo.scene, scratch, RAY_TARGET)
     gid = load_u32(rh + GEOM_ID)
     if gid == INVALID_ID:
         return -1, ox, oy, oz
@@ -174,7 +201,7 @@ def hit_on_plane(geo, scratch, plane_of, plane, dx, dy, dz, state):
     (triangle, hit point, its normal turned towards the ray's origin, the material of that side);
     triangle -1 otherwise."""
     rh = scratch + RAYHIT
-    call_ptr3(geo.intersect, geo.scene, rh, scratch + ARGS)
+    cast(geo.intersect, geo.scene, scratch, RAY_TARGET)
     gid = load_u32(rh + GEOM_ID)
     if gid == INVALID_ID:
         return -1, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0
@@ -208,7 +235,7 @@ def reaches(geo, scratch, origin, direction, near, far, receiver, point):
     dx, dy, dz = direction
     px, py, pz = point
     set_ray(scratch, ox, oy, oz, dx, dy, dz, far)
-    call_ptr3(geo.intersect, geo.scene, scratch + RAYHIT, scratch + ARGS)
+    cast(geo.intersect, geo.scene, scratch, RAY_TARGET)
     gid = load_u32(scratch + RAYHIT + GEOM_ID)
     if gid == INVALID_ID:
         return 0.0

@@ -44,14 +44,15 @@ from numba import njit
 
 from .cones import CONE_DATA, cone_events, local_events
 from .control import add_control, control_deposits, control_products, fold_control
-from .embree import ARGS, CAND, CAND_CAP, CAND_COUNT, GEOM_ID, INVALID_ID, PRIM_ID, RAYHIT
+from .embree import CAND, CAND_CAP, CAND_COUNT, GEOM_ID, INVALID_ID, PRIM_ID, RAYHIT
 from .emission import emit, pick_element
 from .images import double_image_counted, double_image_event, image_counted, image_event
 from .jit import helper
 from .nee import OWN_SAMPLES, next_event
 from .organ_zones import organ_zone_event
-from .ptr import call_ptr3, load_f32, load_i64, load_u32
-from .rays import hit_point, magnitude, pick_coplanar, set_ray
+from .ptr import load_f32, load_i64, load_u32
+from .raylog import RAY_PHOTON
+from .rays import cast, hit_point, magnitude, pick_coplanar, set_ray
 from .records import (ABSORB, DIFFUSE_R, DIFFUSE_T, REPLAY_CONTINUE, REPLAY_STORE, SENSOR_DISC, SPECULAR_R, START_W,
                       V_SURFACE, VPL_W, Accumulator, ControlWork, Photon, Vertex)
 from .rng import n_draws, seed_stream, uniform
@@ -214,7 +215,6 @@ def trace_photons(scene, nee, organs, seed, first, count, tallies, stats, photon
     max_depth = mat.max_depth
     in_batch = 0         # photons in the current batch of the control variate
     rh = scratch + RAYHIT
-    args = scratch + ARGS
     cand_count = scratch + CAND_COUNT
     if nee is not None:
         tgt, mir, zones, cv, _ = nee
@@ -392,7 +392,7 @@ def trace_photons(scene, nee, organs, seed, first, count, tallies, stats, photon
                 skip_sensors = after_diffuse and tgt.on_sensors
                 skip_receivers = after_diffuse and tgt.on_receivers
             set_ray(scratch, ox, oy, oz, dx, dy, dz, _TFAR_MAX)
-            call_ptr3(geo.intersect, geo.scene, rh, args)
+            cast(geo.intersect, geo.scene, scratch, RAY_PHOTON)
             counters[C_RAYS] += 1
             gid = load_u32(rh + GEOM_ID)
             tri = -1 if gid == INVALID_ID else load_u32(rh + PRIM_ID) + geo.geom_offset[gid]
