@@ -68,38 +68,61 @@ REUSE_SCALE = 16.0
 class LightModel:
     """A growth chamber ready to light a plant at every step.
 
+    Every parameter states its unit first ("Unit: ...").  Lengths are in the chamber's unit (the scene's
+    ``unit``; Angers: mm), but for the plant's own coordinates, which are in ``plant_unit``.
+
     Parameters
     ----------
     scene : str or path
+        Unit: none (a path or a name).
         Scene TOML or a built-in name (default ``angers-12bands``: 12 SEC2 bands,
         PAR and R:FR available).
     organs : mapping module name -> material
+        Unit: none (names of modules and materials).
         Which modules are organs and their optical material: a name from the
         scene's optical tables, a ``(front, back)`` pair (a leaf's upper and lower
         side), or ``{"reflectance": R, "transmittance": T}``.  Default: ``Leaf``
         with the Angers leaf tables (:data:`LEAF`).
     photons : int
+        Unit: photons, a count.
         Photons per step (per band: all bands travel together); with ``precision``, the most a step may trace.
-    precision : float, mapping or None
-        What a step waits for before it stops (:mod:`lpy_light.plant.precision`): a number, the relative standard
-        error to reach on every target organ's PAR and R:FR (each band's ppfd when the bands give neither),
-        e.g. 0.04; or the quantities the rules read, ``{"par": 0.03, "rfr": 0.02}`` (PAR relative, R:FR
-        absolute; a band label ``"655-665"``: that band's ppfd, relative).  Organs that receive no light are
-        not waited for; an organ whose far red is too uncertain for its R:FR to be reported (NaN,
-        :data:`lpy_light.chamber.ratios.MAX_DENOMINATOR_CV`) is.  None (default): exactly ``photons`` per step.
+    seed : int
+        Unit: none (a random seed).  Step k traces with ``seed + k``, the lamps' normalisation run with
+        ``seed + 7919``: the numbers depend on the seed alone (``docs/physics.md``, "Determinism").
+    threads : int or None
+        Unit: threads, a count.  Threads that trace a step (None, the default: all cores).
     plant_unit : str
-        Unit of the plant's coordinates ('mm', 'cm', 'm', ...).
+        Unit: none (it names one).  The unit of the plant's coordinates ('mm', 'cm', 'm', ...).
     position : (3,) or None
-        Where the plant's origin goes, in chamber units.
+        Unit: the chamber's unit (the scene's ``unit``; Angers: mm).
+        Where the plant's origin goes; default: the scene's ``plant_position``, else the centre of the floor.
     parameter : str, int, mapping or None
+        Unit: none (a module parameter's name or position).
         The module parameter that receives each organ's :class:`OrganLight`: its name (``"light"``), its
         position (``2``: the third parameter, for models with positional parameters), a mapping module
         name → name or position (``{"Leaf": 3, "Bud": 2}``), or None (nothing written: lighting a model
         from outside, ``lpy-light grow --organs``).
+    estimator : str
+        Unit: none (a registered estimator's name).
+        ``"nee"`` (default): every step traces the chamber's photons again, next events to the organs from every
+        vertex (:mod:`lpy_light.kernel.nee`).  ``"reuse"``: the chamber's light is traced once into a store with
+        the plant in place and gathered at every organ each step through the current plant, ``photons`` then
+        unused (:mod:`lpy_light.estimators.reuse`; every organ is a target; ``docs/performance.md`` says when to use
+        which). ``"field"``: the light entering the plant's region is traced once into a field; each step's rays stay in
+        the region and read it where they leave (:mod:`lpy_light.estimators.field`; every organ is a target).
     lamp_flux : (B,) or None
+        Unit: µmol s⁻¹, one value per band (or one for every band).
         µmol s⁻¹ emitted per band; default: from the scene's lamp spectrum, by a
         ``normalisation_photons`` run on the scene's sensors once (σ ≈ 0.4% at 1e6).
+    normalisation_photons : int
+        Unit: photons, a count.  Photons of the one run of the empty chamber that finds the lamps' photon flux
+        per band from the scene's lamp spectrum (without ``lamp_flux``, and unless the scene gives its
+        ``lamp_flux``); default 10⁶, σ ≈ 0.4 %.
+    progress : callable or None
+        Unit: none (a function).  Called as ``progress(done, total, seconds)`` (photons traced, photons asked,
+        wall-clock seconds) as a step's chunks finish; None (default): nothing is called.
     nee_picks : int
+        Unit: targets per next event, on average over the vertices.
         With ``estimator="nee"``: targets per next event, on average over the vertices (default 2).  Each
         vertex draws as many as the light it can bring the organs asks, up to 4x that
         (:func:`lpy_light.kernel.nee.pick_share`: its photon's weight, its material's diffuse reflectance or
@@ -107,12 +130,14 @@ class LightModel:
         second 1.2-1.5x and the buds' 1.3x against 2 at every vertex.  3 gives ~15 % more precision per second
         there, 4 no more than 2.
     targets : iterable of module names or None
+        Unit: none (module names).
         With ``estimator="nee"``: the modules whose light the model reads and
         that next events aim at (default None: every organ).  The other organs
         still block, scatter and absorb light and still get their numbers, by
         counting the photons that reach them (larger σ, still unbiased); the
         shadow rays go to the organs that matter.
     mirror_events : float or None
+        Unit: next events per photon vertex, on average.
         With ``estimator="nee"``: next events through a flat perfect mirror (the
         chamber's metal walls' specular part) per vertex, on average (0: none, that
         light is then counted).  Default None: 0.2 for a plant, 0.1 where cone rays
@@ -121,7 +146,32 @@ class LightModel:
         rose, leaves get ~6 % of their light that way, and counting it held over half
         their variance: 0.05-1 events per vertex give the same σ, each 0.1 costing
         ~0.1 s per step (``benchmarks/rose.py --images``).
+    precision : float, mapping or None
+        Unit: a relative standard error (0.04: 4 %) for PAR and a band's ppfd; an absolute one for R:FR.
+        What a step waits for before it stops (:mod:`lpy_light.plant.precision`): a number, the relative standard
+        error to reach on every target organ's PAR and R:FR (each band's ppfd when the bands give neither),
+        e.g. 0.04; or the quantities the rules read, ``{"par": 0.03, "rfr": 0.02}`` (PAR relative, R:FR
+        absolute; a band label ``"655-665"``: that band's ppfd, relative).  Organs that receive no light are
+        not waited for; an organ whose far red is too uncertain for its R:FR to be reported (NaN,
+        :data:`lpy_light.chamber.ratios.MAX_DENOMINATOR_CV`) is.  None (default): exactly ``photons`` per step.
+    lamp_scale : float or mapping
+        Unit: a factor (dimensionless); the bands of a mapping's keys in nm.
+        Multiplies the lamps' photon flux: a number (dimmer or brighter lamps, all bands), or
+        ``{"LO-HI": factor}`` for the bands lying within LO-HI nm (``{"700-800": 2.0}``: a far-red
+        supplement of the same lamps, which lowers R:FR).  Default 1.
+    colour_top : float or None
+        Unit: µmol m⁻² s⁻¹ (PAR).
+        PAR (µmol m⁻² s⁻¹) drawn in yellow in ``lpy-light grow``'s pictures: give the scale the model's
+        interpretation rules use in :func:`~lpy_light.plant.plant_view.par_colour`, so both agree.
+    one_sided_organs : bool
+        Unit: none (a switch).
+        An ablation for comparisons, not physics (default False): organs are seen from their front only
+        (the side their right-hand-rule normal points to), as engines that cull back faces see them (the
+        seed's photon mapping with ``$BACKFACE_CULLING yes``): a photon reaching an organ's back face
+        passes through it uncounted.  A leaf has two faces: leave it off to light a plant
+        (``benchmarks/seed_plant.py``, ``docs/validation.md``).
     cone_rays : float or None
+        Unit: rays per photon vertex.
         With ``estimator="nee"``: rays per vertex into the cones of the clusters of organs the vertex is far
         from, the first organ met tallied (:mod:`lpy_light.kernel.cones`; at a vertex whose photon's mean weight
         × the cones' share of its light is 0.5, more or fewer with it up to 4x, a quarter of that near a
@@ -133,6 +183,7 @@ class LightModel:
         p90 σ 2.6 → 1.5 %, buds' median 4.4 → 3.3 %, a step 4.1 → 6.3 s; 16 roses (``benchmarks/canopy.py``):
         the cost to leaves' p90 3 % 697 → ~200 CPU s.
     local_rays : float or None
+        Unit: rays per photon vertex.
         With ``estimator="nee"``: rays per vertex near a cluster of organs, drawn as the photon would leave
         the vertex, the first large organ (leaf) of a near cluster met tallied, in place of those leaves' own
         next events and picks (:func:`lpy_light.kernel.cones.local_events`; 0: own events and picks serve
@@ -141,33 +192,15 @@ class LightModel:
         (:func:`lpy_light.estimators.kernel_scene.local_for`).  Amid a canopy a vertex on a leaf is near dozens of
         leaves; rays meet those it sees, in proportion to its light.  16 roses: the cost to leaves' p90 3 % 67 → 48 CPU
         s (12 cone rays); on a single rose the own events serve the few leaves around a vertex as well or better.
-    lamp_scale : float or mapping
-        Multiplies the lamps' photon flux: a number (dimmer or brighter lamps, all bands), or
-        ``{"LO-HI": factor}`` for the bands lying within LO-HI nm (``{"700-800": 2.0}``: a far-red
-        supplement of the same lamps, which lowers R:FR).  Default 1.
-    colour_top : float or None
-        PAR (µmol m⁻² s⁻¹) drawn in yellow in ``lpy-light grow``'s pictures: give the scale the model's
-        interpretation rules use in :func:`~lpy_light.plant.plant_view.par_colour`, so both agree.
-    estimator : str
-        ``"nee"`` (default): every step traces the chamber's photons again, next events to the organs from every
-        vertex (:mod:`lpy_light.kernel.nee`).  ``"reuse"``: the chamber's light is traced once into a store with
-        the plant in place and gathered at every organ each step through the current plant, ``photons`` then
-        unused (:mod:`lpy_light.estimators.reuse`; every organ is a target; ``docs/performance.md`` says when to use
-        which). ``"field"``: the light entering the plant's region is traced once into a field; each step's rays stay in
-        the region and read it where they leave (:mod:`lpy_light.estimators.field`; every organ is a target).
     reuse : mapping or None
+        Unit: each setting's own, as its class states (``store_photons``: photons; ``renew``: steps).
         With ``estimator="reuse"``: its settings (:class:`lpy_light.estimators.reuse.ReuseSettings`: ``store_photons``,
         ``batches``, ``samples``, ``zone_samples``, ``image_draws``, ``paths``, ``renew``).
     field : mapping or None
+        Unit: each setting's own, as its class states (``store_photons``: photons; ``renew``: steps).
         With ``estimator="field"``: its settings (:class:`lpy_light.estimators.field.FieldSettings`: ``store_photons``,
         ``batches``, ``cells``, ``rings``, ``sectors``, ``rays``, ``shading_rays``, ``piece_rays``, ``pieces``,
         ``bounces``, ``growth``, ``margin``, ``renew``).
-    one_sided_organs : bool
-        An ablation for comparisons, not physics (default False): organs are seen from their front only
-        (the side their right-hand-rule normal points to), as engines that cull back faces see them (the
-        seed's photon mapping with ``$BACKFACE_CULLING yes``): a photon reaching an organ's back face
-        passes through it uncounted.  A leaf has two faces: leave it off to light a plant
-        (``benchmarks/seed_plant.py``, ``docs/validation.md``).
     """
 
     def __init__(self, scene="angers-12bands", organs=None, photons: int = 300_000, seed: int = 1,

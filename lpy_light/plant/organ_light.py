@@ -25,7 +25,36 @@ NOT_REACHED = "not reached"    # an OrganLight's role when no sample of the step
 class OrganLight:
     """The light of one organ at one step (arrays are per band, ``bands`` labels).
 
-    Readable as attributes (``light.par``) or items (``light['par']``) from L-Py rules.
+    Readable as attributes (``light.par``) or items (``light['par']``) from L-Py rules.  Each number has its
+    standard error beside it (``par_std``, ...); a number the step could not define is NaN.
+
+    Attributes
+    ----------
+    key : object
+        The organ's key: its module's index in the L-string (L-Py), or the mapping's key (meshes).
+    module : str
+        The organ's module name (``"Leaf"``).
+    bands : list of str
+        The scene's band labels (``"655-665"``), nm.
+    area_m2 : float
+        The organ's one-sided area, m².
+    photons, photons_std : (B,) ndarray
+        Expected photon hits for the step's photons, per band (a count).
+    ppfd, ppfd_std : (B,) ndarray
+        Incident photon flux density, per band: photons hitting the organ (either side) per second over its
+        one-sided area, µmol m⁻² s⁻¹.
+    absorbed, absorbed_std : (B,) ndarray
+        Absorbed by the organ, per band, µmol s⁻¹.
+    par, par_std : float
+        PAR incident (the bands tiling 400-700 nm), µmol m⁻² s⁻¹; NaN when the bands do not tile it.
+    rfr, rfr_std : float
+        R:FR, ppfd 655-665 / ppfd 725-735 nm (dimensionless), without the first-order bias of a ratio of two
+        estimates; NaN where the far red is too uncertain for that, or a band is missing.
+    absorbed_par, absorbed_par_std : float
+        Absorbed in the bands tiling 400-700 nm, µmol s⁻¹.
+    role : str
+        ``"target"``; ``"shading only"``: the organ blocks light, its own is not estimated (numbers NaN);
+        ``"not reached"``: no sample of the step reached it (numbers NaN, the rules get None).
     """
 
     key: object
@@ -57,7 +86,30 @@ class OrganLight:
 
 @dataclass
 class StepResult:
-    """All organs of one step, with the run's figures."""
+    """All organs of one step, with the run's figures.
+
+    Attributes
+    ----------
+    step : int
+        The step's number, from 0.
+    organs : dict
+        ``{key: OrganLight}``, every organ of the step (targets, "shading only", "not reached").
+    photons : int
+        Photons the step's numbers are for (a count; for ``reuse`` and ``field``, the store's or field's photons).
+    seconds : float
+        Wall-clock seconds of the step's run (s), the kernel's first compile included (the L-Py shapes'
+        conversion before it: ``extra["convert_seconds"]``).
+    triangles : int
+        The organs' triangles (a count).
+    tessellated : int
+        Organs converted this step (tessellation cache misses; a count).
+    reused : int
+        Organs taken from the tessellation cache (a count).
+    extra : dict
+        What else the step reports: ``precision`` and ``precision_reached``, ``outside_chamber`` (keys of organs
+        outside the chamber), ``store`` (the stored estimators' store or field), ``sigma_over_goal``,
+        ``compile_seconds`` and ``convert_seconds`` (s).
+    """
 
     step: int
     organs: dict                 # key -> OrganLight
