@@ -26,6 +26,18 @@ printed per thread count; the target is >= 0.8.  ``--plant`` adds the procedural
 ``benchmarks/rose.py`` (its last stage, ~21 000 triangles) to all four, as organs in the kernel.
 
     .venv/bin/python benchmarks/raw_embree.py [--threads 1 2] [--rays 2e6] [--photons 2e6] [--repeat 5] [--plant]
+
+``--steps`` measures instead each estimator's own rays (:mod:`kernel.raylog`): a step is run on one thread with
+the ray log open, and every ray it cast is cast again, by kind, in a bare loop through our binding -- on a plain
+scene of the same triangles (``bare``: no filters, no sensors, no physics) and on the scene the kernel traced
+(``filtered``: its one-sided filter and sensor quads).  Cases: ``nee`` on the procedural rose (516 organs, the
+12-band chamber; photon rays, next-event rays to organs), the ``field`` on the same rose (the field traced once,
+then a step's rays and bounces in its region), ``weighted`` on Angers (photon rays), and ``nee`` on Angers'
+sensors (the README's main job: photon rays and shadow rays).  Per case: the step's rays per CPU second against
+the bare loop's on the same rays, and each kind's bare and filtered rates:
+
+    .venv/bin/python benchmarks/raw_embree.py --steps [--cases nee-rose field-rose weighted-angers nee-angers]
+                                              [--photons 3e5] [--repeat 3]
 """
 from __future__ import annotations
 
@@ -49,6 +61,7 @@ from lpy_light.kernel.ptr import call_ptr3, load_f32, load_u32, store_f32, store
 from lpy_light.chamber.scene import load_scene
 
 _TFAR_MAX = 3.0e38
+STEP_CASES = ("nee-rose", "field-rose", "weighted-angers", "nee-angers")
 
 
 # ---- (b): the raw loop through our binding -------------------------------------------------
@@ -312,6 +325,163 @@ def report(out) -> str:
     return "\n".join(lines)
 
 
+# ---- each estimator's own rays, cast again ------------------------------------------------------
+@njit(nogil=True, cache=False)
+def cast_logged(scene, intersect_fn, occluded_fn, scratch, rows, kind, occluded):
+    """Cast again the logged rays (``rows`` (n, 8) float32, :mod:`kernel.raylog`) of kind ``kind``, each as it
+    was cast (origin, direction, tfar); ``occluded``: with rtcOccluded1, else rtcIntersect1.  Returns how many
+    met something (so that nothing is optimised away)."""
+    rh = scratch + RAYHIT
+    args = scratch + ARGS
+    fn = occluded_fn if occluded else intersect_fn
+    met = 0
+    for i in range(rows.shape[0]):
+        if rows[i, 7] != kind:
+            continue
+        store_f32(rh + ORG, rows[i, 0])
+        store_f32(rh + ORG + 4, rows[i, 1])
+        store_f32(rh + ORG + 8, rows[i, 2])
+        store_f32(rh + TNEAR, 0.0)
+        store_f32(rh + DIR, rows[i, 3])
+        store_f32(rh + DIR + 4, rows[i, 4])
+        store_f32(rh + DIR + 8, rows[i, 5])
+        store_f32(rh + DIR + 12, 0.0)
+        store_f32(rh + TFAR, rows[i, 6])
+        store_u32(rh + MASK, 0xFFFFFFFF)
+        store_u32(rh + GEOM_ID, INVALID_ID)
+        store_i64(scratch + CAND_COUNT, 0)
+        call_ptr3(fn, scene, rh, args)
+        if occluded:
+            met += load_f32(rh + TFAR) < 0.0
+        else:
+            met += load_u32(rh + GEOM_ID) != INVALID_ID
+    return met
+
+
+class _SceneTap:
+    """Keeps the triangles of every :class:`kernel.embree.EmbreeScene` built while it is on (the field's region is
+    built, traced and released inside a step): ``scenes`` holds (one_sided, two_sided, sensors) per scene."""
+
+    def __init__(self):
+        self.scenes = []
+        self._init = embree.EmbreeScene.__init__
+
+    def __enter__(self):
+        tap, init = self, self._init
+
+        def keep(scene, one_sided=None, two_sided=None, sensors=None):
+            tap.scenes.append((one_sided, two_sided, sensors))
+            init(scene, one_sided, two_sided, sensors)
+
+        embree.EmbreeScene.__init__ = keep
+        return self
+
+    def __exit__(self, *exc):
+        embree.EmbreeScene.__init__ = self._init
+
+
+def _rose_model(estimator, photons, seed=1):
+    from lpy_light.plant.light import LightModel
+    from rose import LEAF_MATERIAL, rose
+
+    model = LightModel("angers-12bands", photons=int(photons), plant_unit="cm", estimator=estimator, threads=1,
+                       targets=("Leaf", "Bud"), seed=seed,
+                       organs={"Leaf": LEAF_MATERIAL, "Internode": LEAF_MATERIAL[0], "Bud": LEAF_MATERIAL[0]})
+    plant = rose(4, 4)
+    organs = model.organs_from_meshes({k: (m, mat, mod) for k, (m, mat, mod) in plant.items()})
+    return model, organs
+
+
+def _run_case(case, photons):
+    """Run one step of ``case`` on one thread with the ray log open.  Returns (CPU seconds of the step, rows of
+    the log, rays cast, {kind: (two_sided triangles of a bare scene, EmbreeScene as the kernel traced)})."""
+    from lpy_light.kernel import raylog
+
+    if case in ("nee-rose", "field-rose"):
+        model, organs = _rose_model(case.split("-")[0], photons)
+        model.run(organs)                                  # compile, pilot, the field's first tracing
+        ks = model.kscene
+
+        def step():
+            model.run(organs)
+    else:
+        estimator = case.split("-")[0]
+        ks = simulate.KernelScene(load_scene(resolve_scene("angers")), estimator)
+        if ks.settings.sensors:                            # as lpy-light run does
+            ks.prune_next_events(threads=1)
+        simulate.run(ks, 20000, seed=2, threads=1)
+
+        def step():
+            simulate.run(ks, int(photons), seed=1, threads=1)
+    raylog.open_log(int(12 * photons) + 1_000_000)
+    with _SceneTap() as tap:
+        c0 = time.process_time()
+        step()
+        cpu = time.process_time() - c0
+    rows, cast = raylog.close_log()
+    kernel_tris = ks.tri_verts
+    scenes = {k: (kernel_tris, ks.scene) for k in raylog.KINDS}
+    if tap.scenes and case.startswith("field"):           # the scene of the field's region
+        one, two, _ = tap.scenes[-1]
+        tris = np.concatenate([t for t in (one, two) if t is not None])
+        scenes[raylog.RAY_FIELD] = (tris, embree.EmbreeScene(one_sided=one, two_sided=two))
+    return cpu, rows, cast, scenes
+
+
+def measure_steps(cases, photons: float = 3e5, repeat: int = 3, verbose: bool = False) -> dict:
+    """Each case's step against a bare loop on its own rays (see the module doc).  Returns {case: {...}}."""
+    from lpy_light.kernel import raylog
+
+    out = {}
+    for case in cases:
+        cpu, rows, cast, scenes = _run_case(case, photons)
+        if len(rows) < cast:
+            raise RuntimeError("the ray log held %d of %d rays: fewer --photons" % (len(rows), cast))
+        scratch = embree.new_scratch()
+        fn_i, fn_o = embree.intersect1_address(), embree.occluded1_address()
+        kinds, bare_total, filt_total = {}, 0.0, 0.0
+        for kind, name in raylog.KINDS.items():
+            n = int(np.sum(rows[:, 7] == kind))
+            if n == 0:
+                continue
+            tris, kernel_scene = scenes[kind]
+            plain = embree.EmbreeScene(two_sided=tris)
+            occl = kind in raylog.OCCLUDED
+            cast_logged(plain.handle, fn_i, fn_o, scratch.ctypes.data, rows[:1000], kind, occl)   # compile, warm
+            best = {}
+            for label, handle in (("bare", plain.handle), ("filtered", kernel_scene.handle)):
+                for _ in range(repeat):
+                    c0 = time.process_time()
+                    cast_logged(handle, fn_i, fn_o, scratch.ctypes.data, rows, kind, occl)
+                    best[label] = min(best.get(label, math.inf), time.process_time() - c0)
+            plain.close()
+            kinds[name] = {"rays": n, "bare_cpu_s": best["bare"], "filtered_cpu_s": best["filtered"],
+                           "bare_rate": n / best["bare"], "filtered_rate": n / best["filtered"]}
+            bare_total += best["bare"]
+            filt_total += best["filtered"]
+        out[case] = {"photons": int(photons), "rays": int(cast), "step_cpu_s": cpu, "step_rate": cast / cpu,
+                     "bare_cpu_s": bare_total, "bare_rate": cast / bare_total, "filtered_cpu_s": filt_total,
+                     "ratio_vs_bare": bare_total / cpu, "embree_share": filt_total / cpu, "kinds": kinds}
+        if verbose:
+            print(report_steps({case: out[case]}), flush=True)
+    return out
+
+
+def report_steps(out) -> str:
+    lines = []
+    for case, r in out.items():
+        lines.append("%s: %d photons, %d rays on one thread; step %.2f CPU s = %.2f M rays/CPU-s; the same rays in a "
+                     "bare loop %.3f CPU s = %.2f M rays/CPU-s: step / bare %.2f (target >= 0.5); Embree as the kernel "
+                     "calls it (filters, sensors) %.3f CPU s, %.0f %% of the step"
+                     % (case, r["photons"], r["rays"], r["step_cpu_s"], r["step_rate"] / 1e6, r["bare_cpu_s"],
+                        r["bare_rate"] / 1e6, r["ratio_vs_bare"], r["filtered_cpu_s"], 100 * r["embree_share"]))
+        for name, k in r["kinds"].items():
+            lines.append("    %-10s %9d rays  bare %6.2f M/CPU-s  filtered %6.2f M/CPU-s  (filters cost %.2fx)"
+                         % (name, k["rays"], k["bare_rate"] / 1e6, k["filtered_rate"] / 1e6,
+                            k["bare_rate"] / k["filtered_rate"]))
+    return "\n".join(lines)
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--threads", type=int, nargs="+", default=[1, 2])
@@ -322,7 +492,16 @@ def main(argv=None):
     ap.add_argument("--plant", action="store_true",
                     help="add the procedural rose of benchmarks/rose.py (516 organs, ~21 000 triangles)")
     ap.add_argument("--json", default=None, help="also write the numbers to this file")
+    ap.add_argument("--steps", action="store_true", help="each estimator's own rays against a bare loop")
+    ap.add_argument("--cases", nargs="+", default=list(STEP_CASES), choices=STEP_CASES)
     args = ap.parse_args(argv)
+    if args.steps:
+        out = measure_steps(args.cases, args.photons if "--photons" in " ".join(argv or sys.argv) else 3e5,
+                            args.repeat, verbose=True)
+        if args.json:
+            Path(args.json).parent.mkdir(parents=True, exist_ok=True)
+            Path(args.json).write_text(json.dumps(out, indent=2, default=float) + "\n")
+        return
     out = measure(tuple(args.threads), int(args.rays), int(args.photons), args.repeat, args.scene, verbose=True,
                   plant=args.plant)
     print(report(out))
