@@ -178,19 +178,20 @@ def sphere_direction(b, n_z, n_phi, u1, u2):
 
 
 @njit(nogil=True, cache=True)
-def guide_tables(box, grid, face0, rings, sectors, light, centre, normals, n_z, n_phi, seed):
+def guide_tables(box, grid, face0, rings, sectors, light, centre, normals, n_z, n_phi, seed, first=0):
     """Where each guided side's light comes from, as drawn by :func:`cast_rays`: for side i (centre (3,) and
     normals (K, 3) of its triangles, drawn by area, turned to the side), each sphere bin (:func:`sphere_bin`)
     weighted by ``light`` (bins,) of the field's bin a ray from the centre in a direction drawn in it leaves the
     region by (the plant not in the way), times the mean over the normals of cos⁺; returns the bins' cumulative
-    shares (sides, n_z · n_phi) (rows of zeros: no light) ."""
+    shares (sides, n_z · n_phi) (rows of zeros: no light).  Row i draws from the random stream (seed, first + i):
+    the rows of a slice of the sides (``first``: its first side's index) are those of the whole."""
     n = centre.shape[0]
     nb = n_z * n_phi
     out = np.zeros((n, nb))
     state = np.zeros(1, np.uint64)
     K = normals.shape[1]
     for i in range(n):
-        seed_stream(state, seed, i)
+        seed_stream(state, seed, first + i)
         acc = 0.0
         for b in range(nb):
             dx, dy, dz = sphere_direction(b, n_z, n_phi, uniform(state), uniform(state))
@@ -392,18 +393,19 @@ def cast_rays(region, sides, bins, guides, first, last, seed, bounces, groups, s
 
 
 @njit(nogil=True, cache=True)
-def read_field(out, ray_tri, through, field, field_total, bins_per_cell, ts_side, n_sides):
+def read_field(out, ray_tri, through, by_bin, field_total, bins_per_cell, ts_side, n_sides):
     """What the rays read, per triangle side (2 t + 0 front, + 1 back) of the region: returns ``rays`` (1 + S,
     n_ts) how many rays left each (all, then each group g: the rays j ≡ g mod S of their side, ``ray_tri``
     order), ``direct`` (1 + S, n_ts, B) the sums of what those that left the region read there (``bins_per_cell``
     × the whole field × the ray's throughput: all rays, then group g's); ``batch`` (S, sides, B) the same sums of
     all the rays against S × batch g of the field alone, by element side (``ts_side``: each triangle side's; the
-    field's own spread); and the links: for each ray whose path ended on a surface, its triangle side ``src``, the
+    field's own spread; ``by_bin`` (bins, S, B): the field bin by bin, each bin's batches side by side in memory,
+    where a ray reads them all); and the links: for each ray whose path ended on a surface, its triangle side ``src``, the
     one it ended on ``dst`` and its throughput ``weight`` (links, B), by group: group g's links are
     ``start[g]:start[g + 1]``.  A ray's group is its index mod S (each side's rays start at a multiple of S:
     :func:`lpy_light.estimators.field.side_budget`)."""
-    S = field.shape[0]
-    n_b = field.shape[2]
+    S = by_bin.shape[1]
+    n_b = by_bin.shape[2]
     n = out.shape[0]
     n_ts = ts_side.shape[0]
     rays = np.zeros((1 + S, n_ts))
@@ -430,7 +432,7 @@ def read_field(out, ray_tri, through, field, field_total, bins_per_cell, ts_side
             if es >= 0:
                 for h in range(S):
                     for b in range(n_b):
-                        batch[h, es, b] += bins_per_cell * S * through[k, b] * field[h, j, b]
+                        batch[h, es, b] += bins_per_cell * S * through[k, b] * by_bin[j, h, b]
     # the links by group (a counting sort): group g's are start[g]:start[g + 1]
     start = np.zeros(S + 1, np.int64)
     for i in range(n_met):

@@ -44,6 +44,7 @@ import math
 import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -360,6 +361,17 @@ class LightField:
     def batches(self) -> int:
         return self.field.shape[0]
 
+    @cached_property
+    def total(self) -> np.ndarray:
+        """(bins, B): the field of all its photons (the batches summed), computed once."""
+        return self.field.sum(axis=0)
+
+    @cached_property
+    def by_bin(self) -> np.ndarray:
+        """(bins, S, B): the field bin by bin, each bin's batches side by side (:func:`read_field` reads them
+        all at once for each ray: one stretch of memory instead of S far apart), made once."""
+        return np.ascontiguousarray(self.field.transpose(1, 0, 2))
+
     @property
     def name(self) -> str:
         return self.key[:12]
@@ -398,7 +410,7 @@ def build_field(kscene, settings: FieldSettings, seed: int = 1, threads: int | N
     grid, face0 = face_grid(box, settings.cells)
     n_bins = int((grid[:, 0] * grid[:, 1]).sum()) * settings.rings * settings.sectors
     S, B = settings.batches, kscene.n_bands
-    scene, _ = kscene.records()
+    scene, _ = kscene.records(next_events=False)
     organ0 = kscene.n_chamber_receivers
     per_batch = math.ceil(settings.store_photons / S)
     photons = per_batch * S
@@ -513,10 +525,11 @@ def side_budget(el, settings: FieldSettings, read=None, scale=None, groups: int 
 GUIDE_NORMALS = 8
 
 
-def side_guides(el, field: LightField, rays, settings: FieldSettings, seed: int):
+def side_guides(el, field: LightField, rays, settings: FieldSettings, seed: int, threads: int = 1):
     """The direction guides of every side with triangles (:func:`lpy_light.kernel.field.guide_tables`; ``rays``
     (sides,) only gives their number), from the field's light summed over its bands, each band as a share of its
-    total; returns (guide (G, bins), guide_of (sides,) −1: cosine alone, where the guide sees no light)."""
+    total; returns (guide (G, bins), guide_of (sides,) −1: cosine alone, where the guide sees no light).  On
+    ``threads`` threads, each a slice of the sides (the same rows as on one)."""
     n_dirs = settings.guide_z * settings.guide_phi
     n_sides = len(rays)
     guide_of = np.full(n_sides, -1, np.int64)
@@ -525,7 +538,7 @@ def side_guides(el, field: LightField, rays, settings: FieldSettings, seed: int)
     sides = np.flatnonzero(np.repeat(np.diff(el["tri_start"]) > 0, 2))
     if len(sides) == 0:
         return np.zeros((1, 1)), guide_of
-    total = field.field.sum(axis=0)
+    total = field.total
     light = (total / np.maximum(total.sum(axis=0), 1e-300)).sum(axis=1)
     elem = sides // 2
     sign = np.where(sides % 2 == 0, 1.0, -1.0)
@@ -538,8 +551,16 @@ def side_guides(el, field: LightField, rays, settings: FieldSettings, seed: int)
     normals = el["normal"][picks] * sign[:, None, None]
     verts = el["verts"]
     centre = verts[picks].mean(axis=(1, 2))
-    table = guide_tables(field.box, field.grid, field.face0, field.rings, field.sectors, light, centre,
-                         np.ascontiguousarray(normals), settings.guide_z, settings.guide_phi, int(seed) + 104729)
+    normals = np.ascontiguousarray(normals)
+    cuts = np.linspace(0, len(sides), max(1, min(int(threads), len(sides))) + 1).astype(np.int64)
+
+    def part(k):
+        a, b = cuts[k], cuts[k + 1]
+        return guide_tables(field.box, field.grid, field.face0, field.rings, field.sectors, light, centre[a:b],
+                            normals[a:b], settings.guide_z, settings.guide_phi, int(seed) + 104729, int(a))
+
+    with ThreadPoolExecutor(max_workers=len(cuts) - 1) as pool:      # guide_tables releases the GIL
+        table = np.concatenate(list(pool.map(part, range(len(cuts) - 1))))
     lit = table[:, -1] > 0
     guide_of[sides[lit]] = np.arange(int(lit.sum()))
     return np.ascontiguousarray(table[lit]) if lit.any() else np.zeros((1, 1)), guide_of
@@ -565,8 +586,8 @@ def field_step(kscene, field: LightField, settings: FieldSettings, seed: int = 1
     geom_offset = np.array([0, n_one, 0, 0], np.int64)
     intersect = embree.intersect1_address()
     offset_rel = float(kscene.chamber.physics.offset)
-    guide, guide_of = side_guides(el, field, rays, settings, seed)
     workers = max(1, threads or 2)
+    guide, guide_of = side_guides(el, field, rays, settings, seed, workers)
     # the sides in parts of about equal rays, one thread each at a time
     n_parts = max(1, min(n_sides, 4 * workers))
     cuts = np.searchsorted(ray_start, np.linspace(0, ray_start[-1], n_parts + 1)[1:-1])
@@ -588,8 +609,8 @@ def field_step(kscene, field: LightField, settings: FieldSettings, seed: int = 1
     t_rays = time.perf_counter() - t0
     S, B = field.batches, kscene.n_bands
     ts_side = np.ascontiguousarray(el["tri_side"].reshape(-1))
-    counts, direct, batch, src, dst, link_w, link_start = read_field(out, ray_tri, through, field.field,
-                                                                     field.field.sum(axis=0), field.bins_per_cell,
+    counts, direct, batch, src, dst, link_w, link_start = read_field(out, ray_tri, through, field.by_bin,
+                                                                     field.total, field.bins_per_cell,
                                                                      ts_side, n_sides)
 
     t_read = time.perf_counter() - t0 - t_rays

@@ -157,6 +157,7 @@ class KernelScene:
         return self
 
     def _assemble(self, verts, mat, receiver):
+        self._assembled = getattr(self, "_assembled", 0) + 1      # the targets' key: these organs, not an id()
         self.tri_verts = np.ascontiguousarray(np.concatenate([self._chamber_verts, verts]))
         normal = triangle_normals(verts) if len(verts) else np.zeros((0, 3))
         self.two_sided = np.concatenate([self._chamber_two_sided, np.full(len(verts), not self.one_sided_organs)])
@@ -185,12 +186,33 @@ class KernelScene:
         self.n_rows = self.n_sensors + 2 * self.n_receivers + len(self.materials) + 4
         if len(self.mat_nee) < len(self.materials):     # new materials start with next events on
             self.mat_nee = np.concatenate([self.mat_nee, np.ones(len(self.materials) - len(self.mat_nee), np.uint8)])
+
+    # The next-event targets are built when first read after a change of organs or settings, not by every
+    # set_organs: a step lit from a light field traces no next event and never reads them (0.24 s of a
+    # 516-organ rose's 1.5 s field step went to building them).
+    @property
+    def targets(self):
+        """The next-event targets (:class:`~lpy_light.kernel.records.Targets`), as the organs and settings now are."""
         self.retarget()
+        return self._targets
+
+    @property
+    def zones(self):
+        """Two-step next events beside discs (:class:`~lpy_light.kernel.records.Zones`)."""
+        self.retarget()
+        return self._zones
+
+    @property
+    def organ_events(self):
+        """Next events to organs (:class:`~lpy_light.kernel.records.OrganEvents`), or None (no organ targets)."""
+        self.retarget()
+        return self._organ_events
 
     def retarget(self):
-        """Rebuild the next-event target arrays after a change of organs or of next-event settings."""
+        """Rebuild the next-event target arrays after a change of organs or of next-event settings (a no-op when
+        neither changed since the last build)."""
         mask = self.receiver_mask
-        key = (id(self.tri_verts), self.tri_verts.shape, id(self.tri_receiver), id(self.sens), bool(self.settings.sensors), bool(self.settings.receivers),
+        key = (self._assembled, id(self.tri_verts), self.tri_verts.shape, id(self.tri_receiver), id(self.sens), bool(self.settings.sensors), bool(self.settings.receivers),
                int(self.settings.picks), bool(self.settings.importance), bool(self.settings.open_zones),
                bool(self.settings.closed_zones), None if mask is None else np.asarray(mask).tobytes())
         if getattr(self, "_targets_key", None) == key:
@@ -203,7 +225,7 @@ class KernelScene:
         else:
             bound = np.zeros(0)
         # a Targets record; its settings (picks, sources switched on) are filled in by records()
-        self.targets = tgt = build_targets(
+        self._targets = tgt = build_targets(
             self.sens, sensors.area, bound, self.n_receivers, self.tri_receiver, self.tri_verts, self.two_sided,
             sensors=self.settings.sensors, receivers=self.settings.receivers, receiver_mask=self.receiver_mask)
         # zones beside discs for two-step next events (only with random picks, where discs have own events)
@@ -214,13 +236,13 @@ class KernelScene:
         disc_normal = np.zeros((n_tgt, 3))
         disc_normal[tgt.sensor_target[on]] = self.sens.normal[on]
         if self.settings.sensors and 0 < self.settings.picks < n_tgt:
-            self.zones = near_zones(self.tri_verts, self.tri_pid, self.n_chamber_triangles, tgt.near_start,
+            self._zones = near_zones(self.tri_verts, self.tri_pid, self.n_chamber_triangles, tgt.near_start,
                                     tgt.near_list, tgt.near_r2, tgt.center, disc_radius, disc_normal)
         else:
-            self.zones = Zones(0.0, np.zeros((0, 14)), np.zeros((0, 2), np.int64), np.zeros(n_tgt + 1, np.int64))
+            self._zones = Zones(0.0, np.zeros((0, 14)), np.zeros((0, 2), np.int64), np.zeros(n_tgt + 1, np.int64))
         # next events to organs (the plant's organs are the targets, with random picks): picks by importance over
         # clusters of targets, two-step events through the organ surface beside an organ
-        self.organ_events = None
+        self._organ_events = None
         if self.settings.importance and self.settings.receivers and not self.settings.sensors and 0 < self.settings.picks < n_tgt:
             clusters = target_clusters(tgt.center, np.sqrt(tgt.img_near2) / NEAR)
             weight = np.ones(n_tgt)
@@ -229,7 +251,7 @@ class KernelScene:
                                 self._own_zones(tgt))
             cluster_of = np.zeros(n_tgt, np.int64)
             cluster_of[clusters.member] = np.repeat(np.arange(len(clusters.radius)), np.diff(clusters.start))
-            self.organ_events = OrganEvents(clusters, weight, weight, cluster_sums(weight, clusters), cluster_of,
+            self._organ_events = OrganEvents(clusters, weight, weight, cluster_sums(weight, clusters), cluster_of,
                                             0.0, weight, 0.0, zones, 0.0, 1.0, np.ones(0))
             self._pick_mean = {}
 
@@ -322,7 +344,7 @@ class KernelScene:
         """An experiment's change of the built next-event targets (``near2=...``: fields of
         :class:`lpy_light.kernel.records.Targets`), used by the next runs until a change of organs or settings
         rebuilds them (:meth:`retarget`)."""
-        self.targets = self.targets._replace(**fields)
+        self._targets = self.targets._replace(**fields)
 
     def material_index(self, material) -> int:
         """Index of ``material`` (a :class:`~lpy_light.chamber.materials.Material`), added if new (by name)."""
@@ -357,10 +379,11 @@ class KernelScene:
             self._assemble(np.zeros((0, 3, 3)), np.zeros((0, 2), np.int32), np.zeros(0, np.int32))
         self.scene.set_organs(tris, one_sided=self.one_sided_organs)
 
-    def records(self, note=None):
+    def records(self, note=None, next_events: bool = True):
         """The kernel's records of this scene as it stands (:mod:`lpy_light.kernel.records`), with the current
         settings (:attr:`settings`, the sources and mirror planes switched on): ``(Scene, NextEvents or None)``, None
-        where next events have no target (``weighted``, ``analog``).  Built once per run.  With organs as
+        where next events have no target (``weighted``, ``analog``) or are not asked for (``next_events`` False: a
+        light field's tracing, which makes none; the targets are then not built).  Built once per run.  With organs as
         targets and ``settings.pick_share``, the vertices' mean pick share comes from a pilot of :attr:`pick_pilot`
         (:data:`PICK_PILOT`) photons (one chunk, a fixed seed: the same for the same organs and settings, on any
         number of threads), once per organs and settings; ``note`` as :func:`compile_kernel`'s, if the kernel compiles for it."""
@@ -372,6 +395,9 @@ class KernelScene:
                             i32(self.cop_list), f64(self.cop_box), f64(self.cop_free), int(self.n_receivers))
         materials = Materials(f64(self.mat_prob), f64(self.mat_cum), i64(self.band_pass), f64(self.mat_phong),
                               estimator_named(self.estimator).weighted, int(phys.max_depth))
+        scene = Scene(geometry, materials, self.emit, self.sens)
+        if not next_events:
+            return scene, None
         targets = self.targets._replace(on_sensors=bool(self.settings.sensors), on_receivers=bool(self.settings.receivers),
                                         picks=int(self.settings.picks), from_material=u8(self.mat_nee),
                                         from_emitter=u8(self.emit_nee))
@@ -382,7 +408,6 @@ class KernelScene:
                           u8(self.mir_on),
                           f64(self.mir_point), f64(self.mir_normal), f64(self.mir_box), u8(self.mir_one_sided))
         zones = self.zones._replace(picks=float(self.settings.zones) if self.settings.sensors else 0.0)
-        scene = Scene(geometry, materials, self.emit, self.sens)
         if len(targets.kind) == 0:
             return scene, None
         control = build_control(targets, self.sens, bool(self.settings.control), int(self.settings.batch))

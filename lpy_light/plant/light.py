@@ -360,8 +360,8 @@ class LightModel:
             targets = None               # the gather serves the organs it aims at only: every organ is one
         self.kscene.configure(sensors=False)  # steps report organs; sensors are counted, not targeted
         self.kscene.set_organs(organs, self.materials, targets)
-        self.kscene.configure(images=self._mirror_events())
-        self.kscene.retarget()                # (a no-op unless set_organs' targets are out of date)
+        if self.estimator != "field":         # a field step makes no next event (nor builds their targets)
+            self.kscene.configure(images=self._mirror_events())
         if not self._pruned and organs:       # once, with the first plant: which vertices see organs
             self.kscene.prune_next_events(threads=self.threads, keep=self.materials)   # organs' materials stay on
             self._pruned = True
