@@ -100,6 +100,8 @@ Targets = namedtuple("Targets", [
     "img_near2",     # (n,) float64: the same for next events through a mirror
     "tri",           # int64: mesh targets' triangles, and
     "tri_cdf",       # float64: their cumulative areas within each target (points drawn by area)
+    "tri_plane",     # (len(tri), 6) float64: each of those triangles' first vertex and unit normal, side by side in
+                     # target order (kernel.nee.facing_triangle reads a bud's 80 in one stretch, not scattered)
     "near_start",    # (T + 1,) int64, and
     "near_list",     # int64: the discs near each triangle, which get an event of their own (kernel.nee.near_discs)
     "near_r2",       # (n,) float64: their near radius²

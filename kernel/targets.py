@@ -18,13 +18,13 @@ from .vectors import norm
 
 
 def build_targets(sens, sens_area, sens_bound, n_receivers_rows, tri_receiver, tri_verts, tri_two_sided,
-                  sensors=True, receivers=True, receiver_mask=None):
+                  sensors=True, receivers=True, receiver_mask=None, *, tri_normal):
     """The next-event targets (:class:`~kernel.records.Targets`) of a scene; numpy, outside the hot loop.
 
     ``sens`` the sensors' :class:`~kernel.records.Sensors` (S of them), ``sens_area`` (S,) their areas and
     ``sens_bound`` (S,) their bounding radii about their centres; ``n_receivers_rows`` R;
     ``tri_receiver`` (T,) receiver index per kernel triangle or -1; ``tri_verts`` (T, 3, 3);
-    ``tri_two_sided`` (T,) bool.  Receiver r's incident row is S + r and its absorbed row S + R + r
+    ``tri_two_sided`` (T,) bool; ``tri_normal`` (T, 3) the kernel's unit normals.  Receiver r's incident row is S + r and its absorbed row S + R + r
     (:mod:`kernel.tallies`).  ``sensors``, ``receivers``: whether they are targets; ``receiver_mask`` (R,)
     bool or None: only these receivers are targets (the others are still tallied, by counting).
 
@@ -113,11 +113,13 @@ def build_targets(sens, sens_area, sens_bound, n_receivers_rows, tri_receiver, t
     mesh_bound = np.array([math.sqrt(img_near2[t]) / NEAR if kind[t] >= T_MESH2 else 0.0 for t in range(len(kind))])
     mesh_radius = mesh_near_radius(center, mesh_bound)
     near_start, near_list, near_r2 = near_discs(tri_verts, center, disc_radius, mesh_radius=mesh_radius)
+    tri = i64(np.concatenate(nee_tri) if nee_tri else np.zeros(0))
+    tri_plane = f64(np.concatenate([np.reshape(tri_verts, (-1, 3, 3))[tri, 0], np.reshape(tri_normal, (-1, 3))[tri]],
+                                   axis=1) if len(tri) else np.zeros((0, 6)))
     return Targets(bool(sensors), bool(receivers), 0, np.zeros(0, np.uint8), np.zeros(0, np.uint8),
                    np.ascontiguousarray(kind, dtype=np.int32), i64(row), i64(abs_row), i64(ref), i64(first),
-                   i64(count), f64(area), center, f64(near2), f64(img_near2),
-                   i64(np.concatenate(nee_tri) if nee_tri else np.zeros(0)),
-                   f64(np.concatenate(nee_cdf) if nee_cdf else np.zeros(0)),
+                   i64(count), f64(area), center, f64(near2), f64(img_near2), tri,
+                   f64(np.concatenate(nee_cdf) if nee_cdf else np.zeros(0)), tri_plane,
                    near_start, near_list, near_r2, sensor_target, receiver_target,
                    np.ascontiguousarray(facing, dtype=np.uint8))
 

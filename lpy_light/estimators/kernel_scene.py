@@ -227,7 +227,8 @@ class KernelScene:
         # a Targets record; its settings (picks, sources switched on) are filled in by records()
         self._targets = tgt = build_targets(
             self.sens, sensors.area, bound, self.n_receivers, self.tri_receiver, self.tri_verts, self.two_sided,
-            sensors=self.settings.sensors, receivers=self.settings.receivers, receiver_mask=self.receiver_mask)
+            sensors=self.settings.sensors, receivers=self.settings.receivers, receiver_mask=self.receiver_mask,
+            tri_normal=self.tri_normal)
         # zones beside discs for two-step next events (only with random picks, where discs have own events)
         n_tgt = len(tgt.kind)
         disc_radius = np.zeros(n_tgt)
