@@ -392,11 +392,9 @@ def _rose_model(estimator, photons, seed=1):
     return model, organs
 
 
-def _run_case(case, photons):
-    """Run one step of ``case`` on one thread with the ray log open.  Returns (CPU seconds of the step, rows of
-    the log, rays cast, {kind: (two_sided triangles of a bare scene, EmbreeScene as the kernel traced)})."""
-    from lpy_light.kernel import raylog
-
+def step_of(case, photons):
+    """``case`` (:data:`STEP_CASES`) made ready on one thread (compiled, its pilot and the field's first tracing
+    done): ``step()`` runs one more step of it.  Its :class:`KernelScene` is ``step.kscene``."""
     if case in ("nee-rose", "field-rose"):
         model, organs = _rose_model(case.split("-")[0], photons)
         model.run(organs)                                  # compile, pilot, the field's first tracing
@@ -413,6 +411,17 @@ def _run_case(case, photons):
 
         def step():
             simulate.run(ks, int(photons), seed=1, threads=1)
+    step.kscene = ks
+    return step
+
+
+def _run_case(case, photons):
+    """Run one step of ``case`` on one thread with the ray log open.  Returns (CPU seconds of the step, rows of
+    the log, rays cast, {kind: (two_sided triangles of a bare scene, EmbreeScene as the kernel traced)})."""
+    from lpy_light.kernel import raylog
+
+    step = step_of(case, photons)
+    ks = step.kscene
     raylog.open_log(int(12 * photons) + 1_000_000)
     with _SceneTap() as tap:
         c0 = time.process_time()
