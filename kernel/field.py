@@ -403,24 +403,36 @@ def read_field(out, ray_tri, through, by_bin, field_total, bins_per_cell, ts_sid
     where a ray reads them all); and the links: for each ray whose path ended on a surface, its triangle side ``src``, the
     one it ended on ``dst`` and its throughput ``weight`` (links, B), by group: group g's links are
     ``start[g]:start[g + 1]``.  A ray's group is its index mod S (each side's rays start at a multiple of S:
-    :func:`lpy_light.estimators.field.side_budget`)."""
-    S = by_bin.shape[1]
-    n_b = by_bin.shape[2]
-    n = out.shape[0]
-    n_ts = ts_side.shape[0]
+    :func:`lpy_light.estimators.field.side_budget`).  On one thread: :func:`read_rays` over all the rays, then
+    :func:`field_links` (``field_step`` reads each part of the rays on the thread that cast it)."""
+    S, n_b, n, n_ts = by_bin.shape[1], by_bin.shape[2], out.shape[0], ts_side.shape[0]
     rays = np.zeros((1 + S, n_ts))
     direct = np.zeros((1 + S, n_ts, n_b))
     batch = np.zeros((S, n_sides, n_b))
     met = np.empty(n, np.int64)
+    n_met = read_rays(out, ray_tri, through, by_bin, field_total, bins_per_cell, ts_side, 0, n, (rays, direct, batch),
+                      met)
+    src, dst, weight, start = field_links(out, ray_tri, through, met[:n_met], S)
+    return rays, direct, batch, src, dst, weight, start
+
+
+@njit(nogil=True, cache=True)
+def read_rays(out, ray_tri, through, by_bin, field_total, bins_per_cell, ts_side, k0, k1, sums, met):
+    """:func:`read_field`'s sums for rays ``k0 .. k1 - 1``, added into ``sums`` = (rays, direct, batch); the rays
+    whose path ended on a surface are written, in order, to ``met[k0:]``; returns how many.  Rays of different
+    element sides add to different rows: parts of the rays cut between sides can be read on threads of their own,
+    each sum in the same order as on one (the same bits)."""
+    rays, direct, batch = sums
+    S, n_b = by_bin.shape[1], by_bin.shape[2]
     n_met = 0
-    for k in range(n):
+    for k in range(k0, k1):
         ts = ray_tri[k]
         g = k % S
         rays[0, ts] += 1.0
         rays[1 + g, ts] += 1.0
         code = out[k]
         if code >= 0:
-            met[n_met] = k
+            met[k0 + n_met] = k
             n_met += 1
         elif code != NOTHING:
             j = -1 - code
@@ -433,7 +445,14 @@ def read_field(out, ray_tri, through, by_bin, field_total, bins_per_cell, ts_sid
                 for h in range(S):
                     for b in range(n_b):
                         batch[h, es, b] += bins_per_cell * S * through[k, b] * by_bin[j, h, b]
-    # the links by group (a counting sort): group g's are start[g]:start[g + 1]
+    return n_met
+
+
+@njit(nogil=True, cache=True)
+def field_links(out, ray_tri, through, met, S):
+    """The links of :func:`read_field` from ``met``, the rays that ended on a surface in ray order: ``(src, dst,
+    weight, start)``, by group (a counting sort): group g's are ``start[g]:start[g + 1]``."""
+    n_met, n_b = met.shape[0], through.shape[1]
     start = np.zeros(S + 1, np.int64)
     for i in range(n_met):
         start[met[i] % S + 1] += 1
@@ -451,7 +470,7 @@ def read_field(out, ray_tri, through, by_bin, field_total, bins_per_cell, ts_sid
         src[p], dst[p] = ray_tri[k], out[k]
         for b in range(n_b):
             weight[p, b] = through[k, b]
-    return rays, direct, batch, src, dst, weight, start
+    return src, dst, weight, start
 
 
 @njit(nogil=True, cache=True)

@@ -51,8 +51,8 @@ import numpy as np
 from ..errors import InputError
 from ..kernel import embree
 from ..kernel.emission import EMIT_CYLINDER, EMIT_LINE, EMIT_SPHERE, EMIT_TRIANGLE
-from ..kernel.field import (add_crossings, bin_crossings, cast_rays, guide_tables, read_field, side_links, side_sums,
-                            solve_passes)
+from ..kernel.field import (add_crossings, bin_crossings, cast_rays, field_links, guide_tables, read_rays, side_links,
+                            side_sums, solve_passes)
 from ..kernel.records import (ABSORB, DIFFUSE_R, DIFFUSE_T, REPLAY_STORE, SPECULAR_R, SPECULAR_T, START_W, VPL_W,
                               FieldBins, Guide, RayEnds, RaySides, Region, Replay, new_tallies)
 from ..kernel.tallies import N_COUNTERS
@@ -599,21 +599,34 @@ def field_step(kscene, field: LightField, settings: FieldSettings, seed: int = 1
     guides = Guide(guide, float(settings.cosine_share), int(settings.guide_phi))
     ends = RayEnds(out, ray_tri, through)
 
+    # each part's rays read where they ended on the thread that cast them (parts are whole sides: each sum has
+    # rows of its own, summed in the same order as on one thread)
+    S, B = field.batches, kscene.n_bands
+    ts_side = np.ascontiguousarray(el["tri_side"].reshape(-1))
+    counts = np.zeros((1 + S, len(ts_side)))
+    direct = np.zeros((1 + S, len(ts_side), B))
+    batch = np.zeros((S, n_sides, B))
+    met = np.empty(len(out), np.int64)
+    by_bin, total = field.by_bin, field.total
+    seconds = np.zeros((len(bounds) - 1, 2))
+
     def part(i):
+        t = time.perf_counter()
         scratch = embree.new_scratch()
         cast_rays(geometry, sides, bins, guides, int(bounds[i]), int(bounds[i + 1]), int(seed), int(settings.bounces),
                   int(field.batches), scratch.ctypes.data, ends)
+        seconds[i, 0] = time.perf_counter() - t
+        k0, k1 = int(ray_start[bounds[i]]), int(ray_start[bounds[i + 1]])
+        n_met = read_rays(out, ray_tri, through, by_bin, total, field.bins_per_cell, ts_side, k0, k1,
+                          (counts, direct, batch), met)
+        seconds[i, 1] = time.perf_counter() - t - seconds[i, 0]
+        return met[k0:k0 + n_met]
 
     with ThreadPoolExecutor(max_workers=workers) as pool:
-        list(pool.map(part, range(len(bounds) - 1)))
-    t_rays = time.perf_counter() - t0
-    S, B = field.batches, kscene.n_bands
-    ts_side = np.ascontiguousarray(el["tri_side"].reshape(-1))
-    counts, direct, batch, src, dst, link_w, link_start = read_field(out, ray_tri, through, field.by_bin,
-                                                                     field.total, field.bins_per_cell,
-                                                                     ts_side, n_sides)
-
-    t_read = time.perf_counter() - t0 - t_rays
+        met = np.concatenate(list(pool.map(part, range(len(bounds) - 1))))
+    src, dst, link_w, link_start = field_links(out, ray_tri, through, met, S)
+    t_read = seconds[:, 1].sum() / workers           # of the time up to here, reading the rays (over the threads)
+    t_rays = time.perf_counter() - t0 - t_read
 
     def solve(c, passes, start=None):
         a, b = (0, len(src)) if c == 0 else (link_start[c - 1], link_start[c])
