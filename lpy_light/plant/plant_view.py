@@ -54,18 +54,20 @@ def organ_values(organs, lights, quantity: str = "par"):
 
 def plant_picture(path, organs, lights, title: str = "", quantity: str = "par", top: float | None = None):
     """Write ``path`` (PNG): the organs' triangles (chamber units) coloured by ``quantity`` on the fixed scale
-    0 → ``top`` µmol m⁻² s⁻¹ (the L-Py viewer's, :func:`par_colour`; default: the largest value shown)."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    from matplotlib.colors import LinearSegmentedColormap
+    0 → ``top`` µmol m⁻² s⁻¹ (the L-Py viewer's, :func:`par_colour`; default: the largest value shown).
+
+    Drawn on a figure of its own, outside pyplot: it renders headless and leaves the caller's backend as it was
+    (a notebook's inline figures keep showing)."""
+    from matplotlib.cm import ScalarMappable
+    from matplotlib.colors import LinearSegmentedColormap, Normalize
+    from matplotlib.figure import Figure
     from mpl_toolkits.mplot3d.art3d import Poly3DCollection
 
     values = organ_values(organs, lights, quantity)
     finite = values[np.isfinite(values)]
     if top is None or not top > 0:
         top = float(finite.max()) if len(finite) and finite.max() > 0 else 1.0
-    fig = plt.figure(figsize=(7, 7))
+    fig = Figure(figsize=(7, 7))
     ax = fig.add_subplot(projection="3d")
     tris, colours = [], []
     for organ, v in zip(organs, values):
@@ -84,8 +86,7 @@ def plant_picture(path, organs, lights, title: str = "", quantity: str = "par", 
     ax.set_zlabel("z (mm)")
     label = "PAR" if quantity == "par" else quantity
     cmap = LinearSegmentedColormap.from_list("lpy_light", VIRIDIS / 255.0)
-    fig.colorbar(plt.cm.ScalarMappable(norm=matplotlib.colors.Normalize(0, top), cmap=cmap), ax=ax, shrink=0.6,
+    fig.colorbar(ScalarMappable(norm=Normalize(0, top), cmap=cmap), ax=ax, shrink=0.6,
                  label="%s incident (µmol m⁻² s⁻¹; grey-brown: not estimated)" % label)
     ax.set_title(title)
     fig.savefig(path, dpi=110)
-    plt.close(fig)
