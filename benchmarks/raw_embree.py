@@ -55,9 +55,9 @@ from numba import njit
 from lpy_light.run import simulate
 from lpy_light.chamber.scene import resolve_scene
 from lpy_light.kernel import embree
-from lpy_light.kernel.embree import (ARGS, CAND_COUNT, DIR, GEOM_ID, INVALID_ID, MASK, ORG, PRIM_ID, RAYHIT,
-                                     TFAR, TNEAR)
-from lpy_light.kernel.ptr import call_ptr3, load_f32, load_u32, store_f32, store_i64, store_u32
+from lpy_light.kernel.embree import ARGS, GEOM_ID, INVALID_ID, PRIM_ID, RAYHIT, TFAR
+from lpy_light.kernel.ptr import call_ptr3, load_f32, load_u32
+from lpy_light.kernel.rays import set_ray
 from lpy_light.chamber.scene import load_scene
 
 _TFAR_MAX = 3.0e38
@@ -71,18 +71,7 @@ def trace_rays(scene, intersect_fn, scratch, org, dirs, out_t, out_prim, out_geo
     rh = scratch + RAYHIT
     args = scratch + ARGS
     for i in range(org.shape[0]):
-        store_f32(rh + ORG, org[i, 0])
-        store_f32(rh + ORG + 4, org[i, 1])
-        store_f32(rh + ORG + 8, org[i, 2])
-        store_f32(rh + TNEAR, 0.0)
-        store_f32(rh + DIR, dirs[i, 0])
-        store_f32(rh + DIR + 4, dirs[i, 1])
-        store_f32(rh + DIR + 8, dirs[i, 2])
-        store_f32(rh + DIR + 12, 0.0)
-        store_f32(rh + TFAR, _TFAR_MAX)
-        store_u32(rh + MASK, 0xFFFFFFFF)
-        store_u32(rh + GEOM_ID, INVALID_ID)
-        store_i64(scratch + CAND_COUNT, 0)
+        set_ray(scratch, org[i, 0], org[i, 1], org[i, 2], dirs[i, 0], dirs[i, 1], dirs[i, 2], _TFAR_MAX)
         call_ptr3(intersect_fn, scene, rh, args)
         gid = load_u32(rh + GEOM_ID)
         if gid == INVALID_ID:
@@ -338,18 +327,7 @@ def cast_logged(scene, intersect_fn, occluded_fn, scratch, rows, kind, occluded)
     for i in range(rows.shape[0]):
         if rows[i, 7] != kind:
             continue
-        store_f32(rh + ORG, rows[i, 0])
-        store_f32(rh + ORG + 4, rows[i, 1])
-        store_f32(rh + ORG + 8, rows[i, 2])
-        store_f32(rh + TNEAR, 0.0)
-        store_f32(rh + DIR, rows[i, 3])
-        store_f32(rh + DIR + 4, rows[i, 4])
-        store_f32(rh + DIR + 8, rows[i, 5])
-        store_f32(rh + DIR + 12, 0.0)
-        store_f32(rh + TFAR, rows[i, 6])
-        store_u32(rh + MASK, 0xFFFFFFFF)
-        store_u32(rh + GEOM_ID, INVALID_ID)
-        store_i64(scratch + CAND_COUNT, 0)
+        set_ray(scratch, rows[i, 0], rows[i, 1], rows[i, 2], rows[i, 3], rows[i, 4], rows[i, 5], rows[i, 6])
         call_ptr3(fn, scene, rh, args)
         if occluded:
             met += load_f32(rh + TFAR) < 0.0
