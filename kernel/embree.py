@@ -31,6 +31,7 @@ import os
 import numpy as np
 from numba import cfunc, types
 
+from . import raylog
 from .ptr import load_f32, load_i64, load_u32, load_u64, store_f32, store_i32, store_i64, store_u32
 
 GEOM_ONE_SIDED, GEOM_TWO_SIDED, GEOM_SENSORS, GEOM_ORGANS = 0, 1, 2, 3
@@ -259,6 +260,5 @@ def new_scratch() -> np.ndarray:
     args[0] = 0                     # RTC_RAY_QUERY_FLAG_INCOHERENT
     args[1] = FEATURE_ALL
     block[ARGS + 8:ARGS + 16].view(np.uint64)[0] = base + CONTEXT   # context*
-    from . import raylog
     raylog.attach(block[LOG:LOG + 24].view(np.uint64))
     return block

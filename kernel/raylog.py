@@ -28,7 +28,7 @@ def open_log(capacity: int):
     _open = (np.zeros((int(capacity), 8), np.float32), np.zeros(1, np.int64))
 
 
-def close_log() -> np.ndarray:
+def close_log() -> tuple:
     """Close the log; returns its rows (n, 8) float32 (the first ``capacity`` rays if more were cast) and the
     number of rays cast while it was open, as ``(rows, cast)``."""
     global _open
