@@ -28,13 +28,14 @@ import tempfile
 from pathlib import Path
 
 import numpy as np
+from numba import njit
 
 from lpy_light.report import reference, validation
 from lpy_light.run import simulate
-from lpy_light.kernel.embree import EmbreeScene, intersect1_address, new_scratch
+from lpy_light.kernel.embree import (ARGS, CAND_COUNT, DIR, GEOM_ID, INVALID_ID, MASK, ORG, PRIM_ID, RAYHIT, TFAR,
+                                     TNEAR, EmbreeScene, intersect1_address, new_scratch)
+from lpy_light.kernel.ptr import call_ptr3, load_u32, store_f32, store_i64, store_u32
 from lpy_light.chamber.scene import load_scene
-
-import coplanar_tie  # noqa: E402  (beside this file)
 
 STRIPS = {"G": ((0, 2400), (1800, 1840)), "D": ((0, 2400), (0, 40)), "AV": ((2360, 2400), (0, 1840)),
           "AR": ((0, 40), (0, 1840))}
@@ -79,8 +80,22 @@ def pm_discs(sensor_csv):
     return np.array(out)
 
 
-# one Embree ray per origin, the primitive hit or -1: the coincident-surface probe's own caster
-_cast = coplanar_tie._cast
+@njit(cache=False)     # not cached: numba would not see edits to the kernel functions it calls
+def _cast(scene, fn, scratch, origins, dirs, out):
+    """One Embree ray per origin (``rtcIntersect1`` through ``fn``): the primitive hit, or -1."""
+    rh = scratch + RAYHIT
+    for i in range(origins.shape[0]):
+        for a in range(3):
+            store_f32(rh + ORG + 4 * a, origins[i, a])
+            store_f32(rh + DIR + 4 * a, dirs[i, a])
+        store_f32(rh + TNEAR, 0.0)
+        store_f32(rh + DIR + 12, 0.0)
+        store_f32(rh + TFAR, 3.0e38)
+        store_u32(rh + MASK, 0xFFFFFFFF)
+        store_u32(rh + GEOM_ID, INVALID_ID)
+        store_i64(scratch + CAND_COUNT, 0)
+        call_ptr3(fn, scene, rh, scratch + ARGS)
+        out[i] = -1 if load_u32(rh + GEOM_ID) == INVALID_ID else load_u32(rh + PRIM_ID)
 
 
 def embree_shares(tris, names, lamps, n=20000, seed=0):
