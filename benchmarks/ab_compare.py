@@ -10,8 +10,8 @@ its own ``.venv`` (``bash scripts/setup.sh`` in it).  Prints each figure as it c
   and M photons per CPU-second (``weighted``);
 * ``nee``: ``lpy-light run angers --photons 2e6 --estimator nee --threads 1``, the whole command's CPU s;
 * ``rose``: ``benchmarks/rose.py --photons 3e5 --steps 5 --threads 1``, the steps' CPU s;
-* ``compile``: with ``kernel/__pycache__`` deleted, ``lpy-light run angers --photons 1e5`` per estimator
-  (CPU and wall s of the whole cold run: numba's compile and a second of tracing).
+* ``compile``: with numba's cache empty (``NUMBA_CACHE_DIR``, a new folder each time), ``lpy-light run angers
+  --photons 1e5`` per estimator (CPU and wall s of the whole cold run: numba's compile and a second of tracing).
 """
 import argparse
 import os
@@ -25,11 +25,11 @@ import time
 from pathlib import Path
 
 
-def _run(tree, cmd):
+def _run(tree, cmd, env=None):
     """(CPU s of the child, wall s, its output)."""
     r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
-    p = subprocess.run(cmd, cwd=tree, capture_output=True, text=True)
+    p = subprocess.run(cmd, cwd=tree, capture_output=True, text=True, env=env)
     wall = time.perf_counter() - t0
     r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
     if p.returncode:
@@ -59,10 +59,12 @@ def measure(tree, what, out_dir):
         out["rose last step: CPU s"] = float(rows[-1][4])
     if "compile" in what:
         for est in ("weighted", "nee", "analog"):
-            shutil.rmtree(tree / "kernel" / "__pycache__", ignore_errors=True)
+            cache = out_dir.parent / "numba-cache"
+            shutil.rmtree(cache, ignore_errors=True)
             shutil.rmtree(out_dir, ignore_errors=True)
+            env = dict(os.environ, NUMBA_CACHE_DIR=str(cache))
             cpu, wall, _ = _run(tree, [cli, "run", "angers", "--photons", "1e5", "--estimator", est, "--threads", "1",
-                                       "--quiet", "--out", str(out_dir)])
+                                       "--quiet", "--out", str(out_dir)], env)
             out["cold first run, %s: CPU s" % est] = cpu
             out["cold first run, %s: wall s" % est] = wall
     return out

@@ -5,6 +5,7 @@
     lpy-light grow MODEL.lpy --steps N [--photons P] --out DIR   # needs L-Py (conda)
     lpy-light calibrate SCENE SURVEY.csv --out DIR   # the scene fitted to measured readings
     lpy-light scenes                       # list the built-in scenes
+    lpy-light compile [--estimator E ...]  # compile run's kernel now (scripts/setup.sh does), trace nothing
 
 SCENE may be a path or the name of a built-in scene (``angers``,
 ``angers-12bands``, ...).  Bad input exits with status 2 and one line
@@ -105,6 +106,13 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--reference-band", metavar="LABEL", default=None,
                    help="band compared with the reference (default 655-665 when the scene has it, else the first)")
     sub.add_parser("scenes", help="list the built-in scenes")
+    k = sub.add_parser("compile", help="compile the kernel of 'run' for an estimator now, tracing nothing (the first "
+                                       "run then starts at once; scripts/setup.sh does it for the main job)")
+    k.add_argument("--estimator", nargs="+", default=[DEFAULT_ESTIMATOR],
+                   choices=tuple(e.name for e in ESTIMATORS.values() if not e.stored),
+                   help="the estimators whose kernel to compile (default: %s)" % DEFAULT_ESTIMATOR)
+    k.add_argument("--scene", default="angers", help="the scene whose kernel it is (default: angers: the kernel "
+                   "of a chamber's sensors)")
     _calibrate_parser(sub)
     _grow_parser(sub)
     _sweep_parser(sub)
@@ -181,6 +189,29 @@ def cmd_run(args) -> int:
         if ESTIMATORS[args.estimator].next_events:
             kscene.prune_next_events(threads=args.threads if executor is None else None)
         return _trace_and_write(args, path, chamber, kscene, measured, ref, ref_band, executor)
+
+
+def cmd_compile(args) -> int:
+    """``lpy-light compile``: the kernels ``run`` needs for ``args.estimator`` on ``args.scene`` compiled (or
+    found in numba's cache, :func:`lpy_light.kernel.kernel_cache_dir`), and the arithmetic fingerprint that a
+    run's summary gives; no photon traced, nothing written but the cache."""
+    import time
+
+    from .run import simulate
+    from .chamber.scene import load_scene
+    from .kernel import numba_cache_dir
+    from .kernel.fingerprint import arithmetic_fingerprint
+
+    start = time.perf_counter()
+    chamber = load_scene(resolve_scene(args.scene))
+    for name in args.estimator:
+        simulate.compile_kernel(simulate.KernelScene(chamber, estimator=name), note=lambda text, name=name: print(
+            "lpy-light: compiling the kernel of 'run --estimator %s' (once per version of lpy-light and numba) ..."
+            % name, file=sys.stderr, flush=True))
+    arithmetic_fingerprint()
+    print("lpy-light: the kernel of 'run --estimator %s' is ready in %.1f s (cached in %s)"
+          % (" / ".join(args.estimator), time.perf_counter() - start, numba_cache_dir()), file=sys.stderr, flush=True)
+    return 0
 
 
 def _compile_kernel(kscene, quiet: bool) -> None:
@@ -605,6 +636,8 @@ def _command(args, passthrough) -> int:
         return 0
     if args.command == "run":
         return cmd_run(args)
+    if args.command == "compile":
+        return cmd_compile(args)
     if args.command == "grow":
         from .plant.grow import cmd_grow
         return cmd_grow(args)
