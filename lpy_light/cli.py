@@ -454,6 +454,9 @@ def _calibrate_parser(sub):
     c.add_argument("--threads", type=int, default=None, help="threads (default: all cores)")
     c.add_argument("--tolerance", type=float, default=None, metavar="D",
                    help="how far a lamp may move, scene units (default: 30 mm)")
+    c.add_argument("--check", metavar="HELD.csv", default=None,
+                   help="a held-out survey of the same chamber (same columns), never fitted: report.md and "
+                        "calibration.json give its rms before and after the fit, what the fit bought")
     c.add_argument("--no-plot", action="store_true", help="no rows.png")
     c.add_argument("--quiet", action="store_true", help="no progress lines")
 
@@ -475,16 +478,27 @@ def cmd_calibrate(args) -> int:
     path = resolve_scene(args.scene)
     chamber = load_scene(path)
     survey = read_survey(args.survey, chamber)
-    check_outputs(args.out, chamber.inputs + [Path(args.survey)])
+    held = None
+    if args.check is not None:
+        held = read_survey(args.check, chamber)
+        missing = [b for b, m, h in zip(chamber.band_labels, survey.columns, held.columns) if m and not h]
+        if missing:
+            raise InputError("the held-out survey has no column for band(s) %s, which the survey measured"
+                             % ", ".join(missing), args.check, 1)
+    check_outputs(args.out, chamber.inputs + [Path(args.survey)] + ([Path(args.check)] if args.check else []))
     say = (lambda text: None) if args.quiet else (lambda text: print("lpy-light: " + text, file=sys.stderr, flush=True))
     cal = calibrate.calibrate(chamber, survey, photons=args.photons, seed=args.seed, threads=args.threads,
-                              tolerance=args.tolerance, say=say)
+                              tolerance=args.tolerance, say=say, check=held)
     base = args.scene if args.scene in builtin_scenes() and not Path(args.scene).exists() else str(path.resolve())
     calibrate.write_outputs(args.out, cal, base, path.stem, plot=not args.no_plot)
     if not args.quiet:
         for b, before, after in zip(cal.bands, cal.cv_before, cal.cv_after):
             print("lpy-light: %-8s cross-validated rms %5.1f %% -> %5.1f %%" % (b, 100 * before, 100 * after),
                   file=sys.stderr)
+        if cal.check is not None:
+            for b, before, after in zip(cal.bands, cal.check["rms_before"], cal.check["rms_after"]):
+                print("lpy-light: %-8s held-out rms %5.1f %% -> %5.1f %%" % (b, 100 * before, 100 * after),
+                      file=sys.stderr)
         for w in cal.warnings:
             print("lpy-light: warning: " + w, file=sys.stderr)
         print("lpy-light: wrote %s (the fitted scene: lpy-light run %s ...), report.md, calibration.json"

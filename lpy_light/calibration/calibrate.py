@@ -1,28 +1,24 @@
-"""A chamber fitted to its survey: ``lpy-light calibrate SCENE SURVEY.csv --out DIR``.
+"""A chamber fitted to its survey: ``lpy-light calibrate SCENE SURVEY.csv --out DIR [--check HELD.csv]``.
 
 The light at a site is linear in each lamp's output, so the scene is traced once per lamp
-(:class:`LampRuns`: ``x[l, s, b]``, sensor s's photon density per photon of lamp l, band b) and the survey
-``y[s, b]`` (µmol m⁻² s⁻¹) is fitted by
+(:class:`LampRuns`: ``X[l, s, b]``, site s's photon density per photon of lamp l, band b), and once more per
+physical parameter that is not linear (:class:`Parameter`: a lamp's position, a diffuser's straight-through
+part, a wall's reflectance) for its derivative, by finite differences with common random numbers (the same
+seed and photons, so that a difference is the parameter's and not noise).  The survey ``y[s, b]``
+(µmol m⁻² s⁻¹) is then fitted by the model of :mod:`lpy_light.calibration.model`: one scale per band, free,
+and priors, centred on the chamber as described, on what may differ from it (each lamp's output and spectrum,
+each θ).  Only what the survey identifies is fitted; the rest stays at its nominal value and the report says
+why.  After the fit the lamps are traced again at the fitted θ and the model linearised there
+(:data:`OUTER` times); the final residuals are those of that run, not of the linear model.
 
-    y[s, b] ≈ Σ_l c[l, b] · (x[l, s, b] + Σ_j θ_j · ∂x[l, s, b]/∂θ_j),
+The same runs light three more sets of sites, never fitted: the survey's cross-validation folds (whole rows
+left out, the whole fit repeated without them), ``check`` (a held-out survey: its rms before and after is
+what the fit bought), and probes over the chamber (:func:`probe_sites`: the fitted light's σ away from the
+survey, from the posterior of what was fitted and the prior of what was not).
 
-``c ≥ 0`` the lamps' outputs in µmol s⁻¹ (how free: :data:`OUTPUT_MODELS`), θ the physical parameters that
-are not linear (:class:`Parameter`: a lamp's position, a diffuser's straight-through part, a wall's
-reflectance), each bounded, their derivatives by finite differences with common random numbers (the same
-seed and photons, so that a difference is the parameter's and not noise).  The fit minimises the relative
-residuals ((y − f) / y)² (a reading's error grows with it).
-
-Model no more than the survey shows: parameters enter one group at a time, each only if it lowers the
-cross-validated rms (:func:`cross_validated`: whole rows of sites left out, not single sites, since
-neighbours share their errors) by at least :data:`MIN_GAIN`; the report says which entered and by how
-much.  Uncertainties are jackknife standard errors over the same rows.  After the selection the lamps are
-traced again at the fitted parameters and the final residuals are those of that run, not of the linear
-model.
-
-Outputs (:func:`write_outputs`): ``scene.toml`` (the original scene plus ``[lamps.*]``,
-``[materials.*]`` and ``lamp_flux``: :mod:`lpy_light.chamber.overrides`), ``calibration.json``, ``report.md``,
-``sites.csv`` (each site and band, measured and simulated before and after) and, with matplotlib,
-``rows.png``.
+Outputs (:func:`write_outputs`): ``scene.toml`` (the original scene plus ``[lamps.*]``, ``[materials.*]`` and
+``lamp_flux``: :mod:`lpy_light.chamber.overrides`), ``calibration.json``, ``report.md``, ``sites.csv`` (each
+site and band, measured and simulated before and after), ``probes.csv`` and, with matplotlib, ``rows.png``.
 """
 from __future__ import annotations
 
@@ -34,31 +30,30 @@ from pathlib import Path
 
 import numpy as np
 
+from . import model as mdl
 from ..chamber import overrides as ov
 from ..chamber.emitters import Emitters
+from ..chamber.sensors import DISC, Sensors
 from ..errors import InputError
 
-#: linear models of the lamps' outputs, each nesting the one before: one µmol s⁻¹ scale per band for all the
-#: lamps (the scene as described, its flux fitted: "before"); a factor per lamp; a factor and a spectral tilt
-#: per lamp; a free output per lamp and band
-OUTPUT_MODELS = ("band", "lamp", "lamp+tilt", "lamp×band")
-#: a parameter group enters only if it lowers the cross-validated rms by this fraction of it
-MIN_GAIN = 0.01
-#: a lamp's output stays within this range of the lamps' common scale (factors of about their mean): more than
-#: lamps of one kind differ by age or dirt; a fit pressing on it is warned about
-OUTPUT_RANGE = (0.5, 2.0)
 #: times the lamps are traced again at the fitted parameters and the model linearised there (Gauss-Newton with
 #: the first derivatives kept: a lamp moved 2 cm is found within its σ where one linearisation falls short)
 OUTER = 2
 #: at most this many lamps are fitted one by one (each costs runs)
 MAX_LAMPS = 16
+#: probes: a grid of this many points a side over the chamber's floor plan, at this many heights from the
+#: survey's lowest site to :data:`HEADROOM` under the lowest lamp
+PROBE_GRID, PROBE_LEVELS, HEADROOM = 4, 4, 0.3
+#: the light above the survey is "constrained" where its σ is at most this many times its σ at the survey's
+#: own sites
+CONSTRAINED = 2.0
 
 
 @dataclass
 class Parameter:
     """A physical parameter that is not linear in the light: its override (``table``, ``name``, ``key``;
-    ``axis`` for a lamp's shift), value with nothing changed, finite-difference step, bounds, unit, and the
-    lamps whose runs it changes (None: all)."""
+    ``axis`` for a lamp's shift), value with nothing changed ``base``, finite-difference step, bounds, prior σ
+    (:data:`lpy_light.calibration.model.PRIOR`), unit, and the lamps whose runs it changes (None: all)."""
 
     group: str
     table: str
@@ -68,6 +63,7 @@ class Parameter:
     lower: float
     upper: float
     unit: str
+    prior: float = 1.0
     axis: int = -1
     base: float = 0.0
     lamps: list | None = None
@@ -78,37 +74,27 @@ class Parameter:
 
 
 @dataclass
-class Fit:
-    """A fitted model: ``outputs`` (the :data:`OUTPUT_MODELS` entry), ``params`` (Parameter), ``theta`` their
-    values, ``c`` (L, B) lamp outputs (µmol s⁻¹ per unit of the lamp's sampled power), ``predicted`` (S, B)."""
-
-    outputs: str
-    params: list
-    theta: np.ndarray
-    c: np.ndarray
-    predicted: np.ndarray
-
-
-@dataclass
 class Calibration:
-    """What ``calibrate`` found; see :func:`calibrate`."""
+    """What ``calibrate`` found; see :func:`calibrate`.  Arrays over the survey's S sites, its B measured bands,
+    the L lamps; ``*_rms`` are relative rms per band (B,)."""
 
     lamps: list
     bands: list
     survey: object
-    before: Fit
-    after: Fit
-    final: np.ndarray                 # (S, B) predicted by the lamps traced again at the fitted parameters
-    steps: list                       # the selection, one dict per candidate tried
-    cv_before: np.ndarray             # (B,) cross-validated rms (relative) of "before"
+    before: np.ndarray                # (S, B) the chamber as described, one scale per band
+    final: np.ndarray                 # (S, B) the lamps traced again at the fitted parameters
+    cv_before: np.ndarray             # (B,) cross-validated rms: each row predicted by the fit without it
     cv_after: np.ndarray
     rms_before: np.ndarray            # (B,) rms of the fits on all sites
     rms_after: np.ndarray
     rms_spectrum: np.ndarray | None   # (B,) the scene's own lamp spectrum, nothing fitted
-    parameters: list                  # report rows: name, value, σ, bounds, unit, warnings
+    parameters: list                  # report rows: every candidate, fitted or not, and why
     output_factor: np.ndarray         # (L, B) each lamp's output relative to the scene's
     output_sigma: np.ndarray
     lamp_flux: np.ndarray             # (B,) µmol s⁻¹
+    noise: dict                       # the readings' scatter the fit assumed
+    probes: list                      # report rows: where the fitted light is how uncertain
+    check: dict | None                # the held-out survey: its rms before and after
     warnings: list
     photons: int
     seconds: float
@@ -118,16 +104,16 @@ class Calibration:
 
 # --- the runs ------------------------------------------------------------------------------------
 class LampRuns:
-    """Per-lamp photon densities of ``chamber`` at the survey's sites, cached by the overrides that change them.
+    """Per-lamp photon densities of ``chamber`` at ``sensors``, cached by the overrides that change them.
 
     ``densities(lamps, materials)`` -> (L, S, B) photons per m² per emitted photon of each lamp (weighted by its
     output), every run with ``photons`` photons and seed ``seed`` (common random numbers)."""
 
-    def __init__(self, chamber, survey, photons: int, seed: int, threads=None, say=None):
-        self.chamber = dataclasses.replace(chamber, sensors=survey.sensors)
+    def __init__(self, chamber, sensors: Sensors, photons: int, seed: int, threads=None, say=None):
+        self.chamber = dataclasses.replace(chamber, sensors=sensors)
         self.lamps = list(dict.fromkeys(chamber.emitters.name))
         self.photons, self.seed, self.threads = photons, seed, threads
-        self.area_m2 = survey.sensors.area * chamber.metres_per_unit ** 2
+        self.area_m2 = sensors.area * chamber.metres_per_unit ** 2
         self.say = say or (lambda text: None)
         self.cache, self.runs, self.seconds = {}, 0, 0.0
 
@@ -144,11 +130,15 @@ class LampRuns:
                        None if em.output is None else em.output[mine])
         return dataclasses.replace(ch, emitters=sub)
 
+    @staticmethod
+    def key(lamp, lamps: dict, materials: dict) -> tuple:
+        return (lamp, repr(sorted((k, sorted(v.items())) for k, v in lamps.items() if k == lamp)),
+                repr(sorted((k, sorted(v.items())) for k, v in materials.items())))
+
     def density(self, lamp, lamps: dict, materials: dict) -> np.ndarray:
         from ..run import simulate
 
-        key = (lamp, repr(sorted((k, sorted(v.items())) for k, v in lamps.items() if k == lamp)),
-               repr(sorted((k, sorted(v.items())) for k, v in materials.items())))
+        key = self.key(lamp, lamps, materials)
         if key not in self.cache:
             ks = simulate.KernelScene(self._scene(lamp, lamps, materials), estimator="nee")
             simulate.compile_kernel(ks)
@@ -180,17 +170,19 @@ def _tables(params, theta) -> tuple:
 
 
 def candidate_parameters(chamber, lamps, tolerance: float) -> list:
-    """The physical parameters a survey may fix, in groups: each lamp's position (x, y, z within
-    ``tolerance`` scene units); each diffuser's straight-through part (materials transmitting >10 %, on
+    """The physical parameters a survey may fix, in groups, each with its prior σ
+    (:data:`lpy_light.calibration.model.PRIOR`): each lamp's position (x, y, z within ``tolerance`` scene
+    units, prior σ :data:`~lpy_light.calibration.model.PRIOR`'s, at most a third of it); each diffuser's straight-through part (materials transmitting >10 %, on
     average over bands); each wall's reflectance (the materials of the vertical surfaces, each covering at
     least 10 % of their area; mirrors excluded), a factor in 0.5..1.5 kept below 1 − T."""
     from ..chamber.materials import DIFFUSE_R, DIFFUSE_T, SPECULAR_R, SPECULAR_T
 
     params = []
+    position = min(mdl.PRIOR["position"] / chamber.metres_per_unit, tolerance / 3)
     for lamp in lamps:
         for axis in range(3):
             params.append(Parameter("%s position" % lamp, "lamps", lamp, "shift", 0.3 * tolerance, -tolerance,
-                                    tolerance, chamber.unit, axis=axis, lamps=[lamp]))
+                                    tolerance, chamber.unit, prior=position, axis=axis, lamps=[lamp]))
     used = np.unique(chamber.tri_material[:, 0])
     for m in used:
         mat = chamber.materials[m]
@@ -198,7 +190,7 @@ def candidate_parameters(chamber, lamps, tolerance: float) -> list:
         if T.mean() > 0.1:
             ts = float((mat.events[SPECULAR_T] / np.where(T > 0, T, 1)).mean())
             params.append(Parameter("%s spread" % mat.name, "materials", mat.name, "specular_transmission",
-                                    0.2 if ts < 0.5 else -0.2, 0.0, 1.0, "", base=ts))
+                                    0.2 if ts < 0.5 else -0.2, 0.0, 1.0, "", prior=mdl.PRIOR["spread"], base=ts))
     tri = chamber.triangles
     normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
     area = 0.5 * np.linalg.norm(normal, axis=1)
@@ -212,125 +204,34 @@ def candidate_parameters(chamber, lamps, tolerance: float) -> list:
         T = mat.events[DIFFUSE_T] + mat.events[SPECULAR_T]
         top = float(min(1.5, np.min((1 - T)[R > 0] / R[R > 0])))
         params.append(Parameter("%s reflectance" % mat.name, "materials", mat.name, "reflectance", -0.1, 0.5,
-                                top, "×", base=1.0))
+                                top, "×", prior=mdl.PRIOR["reflectance"], base=1.0))
     return params
 
 
-# --- the fit ---------------------------------------------------------------------------------------
-def _box_ls(A, b, lower, upper, sweeps: int = 2000):
-    """min ‖A x − b‖ with lower ≤ x ≤ upper, for small A (n, k): cyclic coordinate descent, exact on a convex
-    quadratic with box constraints."""
-    G, h = A.T @ A, A.T @ b
-    x = np.clip(np.linalg.lstsq(A, b, rcond=None)[0], lower, upper)
-    for _ in range(sweeps):
-        old = x.copy()
-        for i in range(len(x)):
-            if G[i, i] > 0:
-                x[i] = min(max(x[i] + (h[i] - G[i] @ x) / G[i, i], lower[i]), upper[i])
-        if np.abs(x - old).max() <= 1e-13 * (1.0 + np.abs(x).max()):
-            break
-    return x
+def probe_sites(chamber, survey) -> tuple:
+    """Where the report states the fitted light's σ: ``(sensors, level (N,) int, heights (levels,))``, upward
+    discs of the survey's median radius on a :data:`PROBE_GRID` ² grid over the chamber's floor plan (its
+    surfaces' extent, inset by a tenth), at :data:`PROBE_LEVELS` heights from the survey's lowest site to
+    :data:`HEADROOM` m under the lowest lamp."""
+    from ..chamber.overrides import _POINT_ROWS
 
-
-def _outputs(model, X, y, wavelengths):
-    """Lamp outputs c (L, B) ≥ 0 of ``model`` fitted to y (S, B) over the sites of X (L, S, B), relative
-    residuals.  NaN columns of y (bands not measured) keep the plain band scale."""
-    L, S, B = X.shape
-    Wy = 1.0 / y
-    c = np.zeros((L, B))
-    for b in range(B):                  # the scene's own outputs, one scale per band
-        t = X[:, :, b].sum(0) * Wy[:, b]
-        c[:, b] = (t @ np.ones(S)) / (t @ t)
-    if model == "band":
-        return c
-    lo, hi = OUTPUT_RANGE
-    if model == "lamp×band":            # each lamp within OUTPUT_RANGE of that scale
-        for b in range(B):
-            c[:, b] = _box_ls(X[:, :, b].T * Wy[:, b, None], np.ones(S), lo * c[:, b], hi * c[:, b])
-        return c
-    # a factor a_l (and tilt t_l) per lamp and a scale k_b per band: alternate the two linear problems
-    lam = (wavelengths - wavelengths.mean()) / max(np.ptp(wavelengths), 1e-9)
-    basis = np.stack([np.ones(B), lam]) if model == "lamp+tilt" else np.ones((1, B))
-    g = np.zeros((L, len(basis)))
-    g[:, 0] = 1.0
-    for _ in range(60):
-        shape = np.maximum(g @ basis, 1e-6)                             # (L, B) relative outputs
-        k = np.array([((X[:, :, b].T @ shape[:, b]) * Wy[:, b]).sum() /
-                      (((X[:, :, b].T @ shape[:, b]) * Wy[:, b]) ** 2).sum() for b in range(B)])
-        A = np.concatenate([np.einsum("ls,q->slq", X[:, :, b] * k[b] * Wy[None, :, b], basis[:, b]).reshape(S, -1)
-                            for b in range(B)])
-        if len(basis) == 1:              # a factor per lamp, within OUTPUT_RANGE of their mean
-            mean = g[:, 0].mean()
-            g_new = _box_ls(A, np.ones(len(A)), np.full(L, lo * mean), np.full(L, hi * mean)).reshape(L, 1)
-        else:
-            g_new = np.linalg.lstsq(A, np.ones(len(A)), rcond=None)[0].reshape(L, len(basis))
-            g_new *= len(g_new) / max(g_new[:, 0].sum(), 1e-300)
-            shape = g_new @ basis           # a factor and tilt per lamp: each band's factor kept in range
-            g_new = np.linalg.lstsq(basis.T, np.clip(shape, lo, hi).T, rcond=None)[0].T
-        g_new /= g_new[:, 0].mean()
-        if np.allclose(g_new, g, rtol=1e-9, atol=1e-12):
-            g = g_new
-            break
-        g = g_new
-    shape = np.maximum(g @ basis, 0.0)
-    k = np.array([((X[:, :, b].T @ shape[:, b]) * Wy[:, b]).sum() /
-                  max((((X[:, :, b].T @ shape[:, b]) * Wy[:, b]) ** 2).sum(), 1e-300) for b in range(B)])
-    return shape * k
-
-
-def fit(model, params, X0, J, y, wavelengths, sites=None, iterations: int = 40, at=None) -> Fit:
-    """Fit ``model``'s outputs and ``params`` (their derivatives ``J`` (P, L, S, B) around ``X0`` (L, S, B)) to
-    ``y`` (S, B) over ``sites`` (a mask; all by default), alternating the outputs (exact for given θ) and θ
-    (linear least squares, clipped to the bounds).  ``X0`` is the light at ``at`` (the parameters' values; by
-    default those of the scene).  Predictions are made at every site."""
-    sites = np.ones(len(y), bool) if sites is None else sites
-    theta = np.array([p.base for p in params] if at is None else at, float)
-    base = theta.copy()
-    lower = np.array([p.lower for p in params], float)
-    upper = np.array([p.upper for p in params], float)
-    Jp = J if len(params) else np.zeros((0,) + X0.shape)
-    for _ in range(iterations if len(params) else 1):
-        X = X0 + np.einsum("j,jlsb->lsb", theta - base, Jp)
-        c = _outputs(model, X[:, sites], y[sites], wavelengths)
-        if not len(params):
-            break
-        F0 = np.einsum("lb,lsb->sb", c, X0[:, sites])
-        A = np.einsum("lb,jlsb->jsb", c, Jp[:, :, sites]) / y[sites]
-        r = ((y[sites] - F0) / y[sites]).ravel()
-        step = np.linalg.lstsq(A.reshape(len(params), -1).T, r, rcond=None)[0]
-        new = np.clip(base + step, lower, upper)
-        if np.allclose(new, theta, rtol=0, atol=1e-9 * (1 + np.abs(upper - lower)).max()):
-            theta = new
-            break
-        theta = new
-    X = X0 + np.einsum("j,jlsb->lsb", theta - base, Jp)
-    c = _outputs(model, X[:, sites], y[sites], wavelengths)
-    return Fit(model, list(params), theta, c, np.einsum("lb,lsb->sb", c, X))
-
-
-def relative_rms(predicted, y) -> np.ndarray:
-    """(B,) rms over sites of (predicted − y) / y."""
-    return np.sqrt(np.mean(((predicted - y) / y) ** 2, axis=0))
-
-
-def cross_validated(model, params, X0, J, y, rows, wavelengths, at=None):
-    """Leave one row of sites out at a time: ``(rms (B,), fits)``, the rms of the left-out rows' predictions
-    and each fold's :class:`Fit` (for jackknife errors)."""
-    predicted = np.zeros_like(y)
-    fits = []
-    for r in np.unique(rows):
-        out = rows == r
-        f = fit(model, params, X0, J, y, wavelengths, sites=~out, at=at)
-        predicted[out] = f.predicted[out]
-        fits.append(f)
-    return relative_rms(predicted, y), fits
-
-
-def jackknife(values) -> np.ndarray:
-    """Jackknife standard error over leave-one-row-out estimates ``values`` (n, ...)."""
-    v = np.asarray(values, float)
-    n = len(v)
-    return np.sqrt((n - 1) / n * ((v - v.mean(axis=0)) ** 2).sum(axis=0))
+    lo, hi = chamber.triangles.reshape(-1, 3).min(axis=0), chamber.triangles.reshape(-1, 3).max(axis=0)
+    em = chamber.emitters
+    lamp_z = min(float(em.data[e, :_POINT_ROWS[int(em.kind[e])], 2].min()) for e in range(len(em)))
+    z0 = float(survey.sensors.center[:, 2].min())
+    top = lamp_z - HEADROOM / chamber.metres_per_unit
+    heights = np.linspace(z0, top, PROBE_LEVELS) if top > z0 else np.array([z0])
+    inset = 0.1 * (hi - lo)
+    xs = np.linspace(lo[0] + inset[0], hi[0] - inset[0], PROBE_GRID)
+    ys = np.linspace(lo[1] + inset[1], hi[1] - inset[1], PROBE_GRID)
+    pts = np.array([(x, y, z) for z in heights for y in ys for x in xs])
+    level = np.repeat(np.arange(len(heights)), PROBE_GRID * PROBE_GRID)
+    r = float(np.median(survey.sensors.radius)) if (survey.sensors.radius > 0).any() else \
+        float(np.sqrt(np.median(survey.sensors.area) / np.pi))
+    n = len(pts)
+    sensors = Sensors(np.full(n, DISC, np.int32), pts, np.tile([0.0, 0.0, 1.0], (n, 1)), np.full(n, r),
+                      np.zeros((n, 4, 3)), [("probe", i) for i in range(n)])
+    return sensors, level, heights
 
 
 # --- the whole job ---------------------------------------------------------------------------------
@@ -343,12 +244,66 @@ def _relative_outputs(c, runs_weight):
     return c / np.where(flux > 0, flux, 1.0), flux
 
 
+def _output_sigma(lay, sol, weight, draws: int = 400) -> np.ndarray:
+    """(L, B) σ of the lamps' relative outputs, from the posterior (draws of φ, a fixed seed)."""
+    rng = np.random.default_rng(0)
+    phis = rng.multivariate_normal(sol.phi, sol.cov, size=draws, method="eigh")
+    factors = np.array([_relative_outputs(mdl.outputs(lay, p), weight)[0] for p in phis])
+    return factors.std(axis=0)
+
+
+def _parameter_rows(lay, sol, params) -> list:
+    """report rows: each θ candidate, each lamp's output (relative to the lamps' mean) and tilt: value, σ, prior
+    σ, σ / prior σ, fitted or why not."""
+    sigma = sol.sigma(lay)
+    rows = []
+    for sl, kind in ((lay.theta, None), (lay.a, "output"), (lay.t, "tilt")):
+        if sl.stop <= sl.start:
+            continue
+        centred = sol.phi[sl] - (0.0 if kind is None else sol.phi[sl].mean())
+        for k, i in enumerate(range(sl.start, sl.stop)):
+            p = params[k] if kind is None else None
+            value = centred[k] if kind != "output" else np.exp(centred[k])
+            rows.append({"parameter": lay.label[i], "group": p.group if p else "lamp %s" % kind,
+                         "value": float(value), "sigma": float(sigma[i] * (value if kind == "output" else 1.0)),
+                         "prior_sigma": float(lay.sigma[i]), "sigma_over_prior": float(sol.ratio[i]),
+                         "lower": float(p.lower) if p else None, "upper": float(p.upper) if p else None,
+                         "unit": p.unit if p else ("× the lamps' mean" if kind == "output" else
+                                                   "log, over the bands' span"),
+                         "fitted": bool(sol.free[i]), "notes": [sol.notes[i]] if i in sol.notes else []})
+    return rows
+
+
+def _probe_rows(lay, sol, Xp, Jp, level, heights, sigma_survey, unit) -> tuple:
+    """(rows, warnings): per probe height, the fitted light's relative σ (mean over bands) at the probes that see
+    light: median and largest, and the share within :data:`CONSTRAINED` × the σ at the survey's sites."""
+    f = mdl.predict(lay, sol, Xp, Jp)
+    sig = mdl.predicted_sigma(lay, sol, Xp, Jp).mean(axis=1)
+    lit = f.mean(axis=1) > 0.01 * np.median(f.mean(axis=1))        # a probe inside a bench or a pot reads nothing
+    rows, warnings = [], []
+    for k, h in enumerate(heights):
+        at = lit & (level == k)
+        if not at.any():
+            continue
+        s = sig[at]
+        rows.append({"z": float(h), "unit": unit, "probes": int(at.sum()), "sigma_median": float(np.median(s)),
+                     "sigma_max": float(s.max()),
+                     "constrained_share": float(np.mean(s <= CONSTRAINED * sigma_survey))})
+        if np.median(s) > CONSTRAINED * sigma_survey:
+            warnings.append("at z = %g %s the fitted light's σ is %.1f %% (median over the chamber's plan), %.1f times "
+                            "its σ at the survey's sites: the survey does not constrain the light there"
+                            % (h, unit, 100 * np.median(s), np.median(s) / sigma_survey))
+    return rows, warnings
+
+
 def calibrate(chamber, survey, photons: int = 2_000_000, seed: int = 1, threads=None, tolerance: float | None = None,
-              say=None) -> Calibration:
+              say=None, check=None, runs=None) -> Calibration:
     """Fit ``chamber`` to ``survey`` (:class:`lpy_light.calibration.survey.Survey`); see the module docstring.
 
     ``photons`` per lamp run (nee), ``tolerance`` how far a lamp may move (scene units; default 30 mm),
-    ``say(text)`` progress lines."""
+    ``check`` a held-out survey (never fitted: its rms before and after), ``say(text)`` progress lines.
+    ``runs``: a :class:`LampRuns` over the survey's sites, then the check's, then :func:`probe_sites`'s (to share
+    runs between fits; made here by default)."""
     say = say or (lambda text: None)
     t0 = time.perf_counter()
     lamps = list(dict.fromkeys(chamber.emitters.name))
@@ -357,11 +312,17 @@ def calibrate(chamber, survey, photons: int = 2_000_000, seed: int = 1, threads=
                          % (len(lamps), MAX_LAMPS), chamber.source)
     measured = survey.columns
     y = survey.values[:, measured]
-    B = int(measured.sum())
+    bands = [lab for lab, m in zip(chamber.band_labels, measured) if m]
     wavelengths = np.array([0.5 * (a + b) for a, b in (chamber.bands or [(0.0, 1.0)])])[measured]
     tolerance = 0.03 / chamber.metres_per_unit if tolerance is None else float(tolerance)
-    runs = LampRuns(chamber, survey, photons, seed, threads, say)
-    say("tracing the %d lamps one at a time (%d photons each, seed %d)" % (len(lamps), photons, seed))
+    probes, level, heights = probe_sites(chamber, survey)
+    S, H = len(survey), 0 if check is None else len(check)
+    fit_i, check_i, probe_i = np.arange(S), np.arange(S, S + H), np.arange(S + H, S + H + len(probes))
+    if runs is None:
+        parts = [survey.sensors] + ([] if check is None else [check.sensors]) + [probes]
+        runs = LampRuns(chamber, Sensors.concat(parts), photons, seed, threads, say)
+    say("tracing the %d lamps one at a time (%d photons each, seed %d; %d survey sites, %d held out, %d probes)"
+        % (len(lamps), photons, seed, S, H, len(probes)))
     weight = np.array([chamber.emitters.sampled_power[[n == lamp for n in chamber.emitters.name]].sum()
                        for lamp in lamps])
     share = (weight / weight.sum())[:, None, None]    # x[l]: lamp l's part of the scene's photons per photon
@@ -376,97 +337,71 @@ def calibrate(chamber, survey, photons: int = 2_000_000, seed: int = 1, threads=
         Xj = runs.densities(*_tables(params, theta))[:, :, measured] * share
         J[j] = (Xj - X0) / p.step
         say("  %s: %d runs so far, %.0f s" % (p.label, runs.runs, time.perf_counter() - t0))
-    rows = survey.row
+    lay = mdl.layout(lamps, bands, wavelengths, params)
+    def on(X, idx):
+        return X[:, idx]
 
-    def index(groups):
-        return [j for j, p in enumerate(params) if p.group in groups]
+    def J_on(idx):
+        return J[:, :, idx]
 
-    steps = []
-    before_cv, _ = cross_validated("band", [], X0, J[:0], y, rows, wavelengths)
-    model, best_cv, chosen = "band", before_cv, []
-    for candidate in OUTPUT_MODELS[1:2] if B == 1 else OUTPUT_MODELS[1:]:    # one band: no spectral freedom
-        cv, _ = cross_validated(candidate, [], X0, J[:0], y, rows, wavelengths)
-        entered = cv.mean() < (1 - MIN_GAIN) * best_cv.mean()
-        steps.append({"candidate": "lamp outputs: %s" % candidate, "cv_rms": float(cv.mean()),
-                      "cv_rms_before": float(best_cv.mean()), "entered": bool(entered)})
-        if entered:
-            model, best_cv = candidate, cv
-    groups = list(dict.fromkeys(p.group for p in params))
-    while True:
-        trial = {}
-        for g in groups:
-            if g in chosen:
-                continue
-            idx = index(chosen + [g])
-            trial[g], _ = cross_validated(model, [params[i] for i in idx], X0, J[idx], y, rows, wavelengths)
-        if not trial:
-            break
-        g = min(trial, key=lambda k: trial[k].mean())
-        for k, cv in trial.items():
-            steps.append({"candidate": k, "cv_rms": float(cv.mean()), "cv_rms_before": float(best_cv.mean()),
-                          "entered": bool(k == g and cv.mean() < (1 - MIN_GAIN) * best_cv.mean())})
-        if not trial[g].mean() < (1 - MIN_GAIN) * best_cv.mean():
-            break
-        chosen.append(g)
-        best_cv = trial[g]
-        say("  entered: %s (cross-validated rms %.2f %%)" % (g, 100 * best_cv.mean()))
-    idx = index(chosen)
-    sel = [params[i] for i in idx]
-    before = fit("band", [], X0, J[:0], y, wavelengths)
-    after = fit(model, sel, X0, J[idx], y, wavelengths)
-    at, Xa = None, X0
-    for _ in range(OUTER if sel else 0):   # the lamps traced again at the fit, the model linearised there
-        at = after.theta
-        Xa = runs.densities(*_tables(sel, at))[:, :, measured] * share
-        after = fit(model, sel, Xa, J[idx], y, wavelengths, at=at)
+    sol = mdl.solve(lay, y, on(X0, fit_i), J_on(fit_i))
+    at, Xa = lay.mu[lay.theta].copy(), X0
+    for _ in range(OUTER if (sol.phi[lay.theta] != at).any() else 0):   # traced again at the fit, linearised there
+        at = sol.phi[lay.theta].copy()
+        Xa = runs.densities(*_tables(params, at))[:, :, measured] * share
+        sol = mdl.solve(lay, y, on(Xa, fit_i), J_on(fit_i), at)
         say("  re-linearised at the fit (%s): %d runs so far" % (
-            ", ".join("%s %.4g" % (p.label, v) for p, v in zip(sel, after.theta)), runs.runs))
-    _, folds = cross_validated(model, sel, Xa, J[idx], y, rows, wavelengths, at=at)
+            ", ".join("%s %.4g" % (p.label, v) for p, v, free in zip(params, sol.phi[lay.theta], sol.free[lay.theta])
+                      if free) or "no position or material fitted", runs.runs))
+    say("cross-validating: the whole fit again without each of %d rows of sites" % len(np.unique(survey.row)))
+    cv_after = mdl.cross_validated(lay, y, on(Xa, fit_i), J_on(fit_i), survey.row, at)
+    cv_before = mdl.cross_validated_scales(lay, y, on(X0, fit_i), J_on(fit_i), survey.row)
     # the lamps traced again where the fit put them: the final residuals are a run's, not the linear model's
-    Xf = runs.densities(*_tables(sel, after.theta))[:, :, measured] * share if sel else X0
-    final_c = _outputs(model, Xf, y, wavelengths)
-    final = np.einsum("lb,lsb->sb", final_c, Xf)
-    factor, flux = _relative_outputs(final_c, weight)
-    fold_factor = np.array([_relative_outputs(f.c, weight)[0] for f in folds])
-    factor_sigma = jackknife(fold_factor)
-    theta_sigma = jackknife([f.theta for f in folds]) if sel else np.zeros(0)
-    warnings, table = [], []
-    for p, v, s in zip(sel, after.theta, theta_sigma):
-        notes = []
-        span = p.upper - p.lower
-        if min(v - p.lower, p.upper - v) < 1e-3 * span:
-            notes.append("at its bound")
-        if s > 0.25 * span:
-            notes.append("not identifiable (σ over a quarter of its range)")
-        table.append({"parameter": p.label, "group": p.group, "value": float(v), "sigma": float(s),
-                      "lower": p.lower, "upper": p.upper, "unit": p.unit, "notes": notes})
-        warnings += ["%s = %.4g %s: %s" % (p.label, v, p.unit, n) for n in notes]
-    for li, lamp in enumerate(lamps):
-        if model != "band" and (factor_sigma[li] > 0.25 * np.maximum(factor[li], 1e-12)).any():
-            warnings.append("%s's output: σ over 25 %% of its value in some band (not identifiable from this "
-                            "survey)" % lamp)
-        if model != "band" and (factor[li] < 1e-6).any():
-            warnings.append("%s's output fitted to 0 in some band (at its bound)" % lamp)
-        elif model != "band" and ((factor[li] < 1.01 * OUTPUT_RANGE[0]) | (factor[li] > 0.99 * OUTPUT_RANGE[1])).any():
-            warnings.append("%s's output is %.2f-%.2f times the scene's, at or beyond its bounds %g-%g: more than "
-                            "lamps of one kind differ; the fit may be absorbing an error of geometry (a lamp's place, "
-                            "a reflector)" % (lamp, factor[li].min(), factor[li].max(), *OUTPUT_RANGE))
+    theta = sol.phi[lay.theta].copy()
+    Xf = runs.densities(*_tables(params, theta))[:, :, measured] * share if (theta != at).any() else Xa
+    fitted = dataclasses.replace(sol, at=theta)
+    final = mdl.predict(lay, fitted, on(Xf, fit_i), J_on(fit_i))
+    phi_b = mdl.band_only(lay, y, on(X0, fit_i), J_on(fit_i))
+    before = mdl.light(lay, phi_b, on(X0, fit_i), J_on(fit_i), lay.mu[lay.theta])[0]
+    factor, flux = _relative_outputs(mdl.outputs(lay, sol.phi), weight)
+    factor_sigma = _output_sigma(lay, sol, weight)
+    table = _parameter_rows(lay, sol, params)
+    warnings = ["%s: %s" % (lay.label[i], why) for i, why in sorted(sol.notes.items())
+                if "bound" in why]
+    sigma_survey = float(np.median(mdl.predicted_sigma(lay, fitted, on(Xf, fit_i), J_on(fit_i)).mean(axis=1)))
+    probe_rows, probe_warnings = _probe_rows(lay, fitted, on(Xf, probe_i), J_on(probe_i), level, heights,
+                                             sigma_survey, chamber.unit)
+    warnings += probe_warnings
+    held = None
+    if check is not None:
+        both = check.columns[measured]
+        yc = check.values[:, measured]
+        pb = mdl.light(lay, phi_b, on(X0, check_i), J_on(check_i), lay.mu[lay.theta])[0]
+        pa = mdl.predict(lay, fitted, on(Xf, check_i), J_on(check_i))
+        rb, ra = np.full(len(bands), np.nan), np.full(len(bands), np.nan)
+        rb[both] = mdl.relative_rms(pb[:, both], yc[:, both])
+        ra[both] = mdl.relative_rms(pa[:, both], yc[:, both])
+        held = {"survey": check.path, "held": check, "sites": H, "rms_before": rb, "rms_after": ra, "before": pb, "after": pa}
+        worse = [b for b, r in zip(bands, ra / rb) if r > 1.1]
+        if worse:
+            warnings.append("at the held-out sites of %s the fitted chamber is more than 1.1 times worse than the "
+                            "unfitted one in %d band(s) (%s)" % (check.path, len(worse), ", ".join(worse)))
     rms_spectrum = None
     if chamber.spectrum is not None and chamber.bands is not None:
         from ..chamber.units import band_photon_flux
         M = band_photon_flux(chamber.spectrum, chamber.bands)[measured]
-        tot = X0.sum(axis=0)
-        rms_spectrum = relative_rms(tot * M / tot.mean(axis=0), y)
-    after_cv, _ = cross_validated(model, sel, Xa, J[idx], y, rows, wavelengths, at=at)
-    out = Calibration(lamps, [lab for lab, m in zip(chamber.band_labels, measured) if m], survey, before, after,
-                      final, steps, before_cv, after_cv, relative_rms(before.predicted, y), relative_rms(final, y),
-                      rms_spectrum, table, factor, factor_sigma, flux, warnings, photons,
+        tot = on(X0, fit_i).sum(axis=0)
+        rms_spectrum = mdl.relative_rms(tot * M / tot.mean(axis=0), y)
+    fitted_outputs = bool(sol.free[lay.a].any() or sol.free[lay.t].any() or sol.free[lay.e].any())
+    out = Calibration(lamps, bands, survey, before, final, cv_before, cv_after, mdl.relative_rms(before, y),
+                      mdl.relative_rms(final, y), rms_spectrum, table, factor, factor_sigma, flux,
+                      {"sigma": sol.noise.sigma, "rho": sol.noise.rho}, probe_rows, held, warnings, runs.photons,
                       time.perf_counter() - t0, runs.runs)
-    out.scene_overrides = _scene_tables(chamber, lamps, measured, model, factor, sel, after.theta, flux)
+    out.scene_overrides = _scene_tables(chamber, lamps, measured, fitted_outputs, factor, params, theta, flux)
     return out
 
 
-def _scene_tables(chamber, lamps, measured, model, factor, params, theta, flux) -> dict:
+def _scene_tables(chamber, lamps, measured, fitted_outputs, factor, params, theta, flux) -> dict:
     """The keys the fitted scene adds: ``lamps``, ``materials``, ``lamp_flux`` (per scene band; a band the survey
     did not measure keeps the measured bands' mean factor and has no lamp_flux, so none is written then)."""
     lamp_tables, materials = _tables(params, theta)
@@ -484,7 +419,7 @@ def _scene_tables(chamber, lamps, measured, model, factor, params, theta, flux) 
         full[measured] = factor[li]
         full[~measured] = np.nanmean(full) if measured.any() else 1.0
         t = lamp_tables.setdefault(lamp, {})
-        if model == "band":
+        if not fitted_outputs:
             continue
         if "output" in had.get("lamps", {}).get(lamp, {}):
             full = full * ov.per_band(had["lamps"][lamp]["output"], B, "output")
@@ -525,7 +460,13 @@ def scene_text(base: str, cal: Calibration, survey_path: str) -> str:
 def summary(cal: Calibration) -> dict:
     """calibration.json's content."""
     def per_band(a):
-        return None if a is None else {b: float(v) for b, v in zip(cal.bands, a)}
+        return None if a is None else {b: (None if not np.isfinite(v) else float(v)) for b, v in zip(cal.bands, a)}
+    check = None
+    if cal.check is not None:
+        c = cal.check
+        check = {"survey": c["survey"], "sites": c["sites"], "rms_before": per_band(c["rms_before"]),
+                 "rms_after": per_band(c["rms_after"]), "after_over_before": per_band(c["rms_after"] / c["rms_before"]),
+                 "before": "the chamber as described, one scale per band fitted on the survey (not on these sites)"}
     return {
         "survey": cal.survey.path, "sites": len(cal.survey), "rows": int(cal.survey.row.max() + 1),
         "lamps": cal.lamps, "bands": cal.bands,
@@ -533,24 +474,33 @@ def summary(cal: Calibration) -> dict:
         "rms_relative": {"spectrum_only": per_band(cal.rms_spectrum), "before": per_band(cal.rms_before),
                          "after": per_band(cal.rms_after)},
         "cv_rms_relative": {"before": per_band(cal.cv_before), "after": per_band(cal.cv_after),
-                            "how": "leave one row of sites out; rows: %s" % cal.survey.row_source},
+                            "how": "leave one row of sites out, the whole fit (what is identified included) on the "
+                                   "others; rows: %s" % cal.survey.row_source},
+        "check": check,
         "before": "the scene as described, one µmol s-1 scale per band fitted (lamp outputs as the scene has them)",
-        "outputs_model": cal.after.outputs,
-        "selection": cal.steps,
+        "model": "maximum a posteriori, priors centred on the scene as described (lpy_light.calibration.model); "
+                 "only parameters whose posterior σ is at most %g of their prior σ are fitted" % mdl.IDENTIFIED,
+        "priors": dict(mdl.PRIOR, position_unit="m"),
+        "noise": {"sigma": per_band(cal.noise["sigma"]), "band_correlation": cal.noise["rho"]},
         "parameters": cal.parameters,
         "lamp_outputs": {lamp: {"factor": per_band(cal.output_factor[i]), "sigma": per_band(cal.output_sigma[i])}
                          for i, lamp in enumerate(cal.lamps)},
         "lamp_flux": per_band(cal.lamp_flux),
-        "uncertainty": "jackknife over the rows of sites (leave one row out); the lamp runs' own noise, "
-                       "common to every fold, is not in it",
+        "away_from_the_survey": {"probes": cal.probes,
+                                 "how": "relative σ of the fitted light (mean over bands) on a grid over the chamber's "
+                                        "plan at each height: the posterior of what was fitted, the prior of what "
+                                        "was not"},
+        "uncertainty": "posterior σ (the model's Gauss-Newton Hessian, readings' scatter estimated from the "
+                       "residuals); the lamp runs' own noise is not in it",
         "warnings": cal.warnings,
         "scene": cal.scene_overrides,
     }
 
 
 def report_text(cal: Calibration, scene_name: str) -> str:
-    """report.md: rms per band before and after, cross-validated; the selection; the parameters."""
-    pct = lambda a: "%.1f" % (100 * a)   # noqa: E731
+    """report.md: rms per band before and after, cross-validated and on held-out sites; what was fitted and what
+    was not, and why; the σ of the fitted light away from the survey."""
+    pct = lambda a: "—" if not np.isfinite(a) else "%.1f" % (100 * a)   # noqa: E731
     lines = ["# %s fitted to %s" % (scene_name, cal.survey.path), "",
              "%d sites in %d rows, %d lamps, %d bands; %d runs of %d photons, %.0f s." % (
                  len(cal.survey), cal.survey.row.max() + 1, len(cal.lamps), len(cal.bands), cal.runs, cal.photons,
@@ -564,39 +514,57 @@ def report_text(cal: Calibration, scene_name: str) -> str:
               "| after | %s |" % " | ".join(map(pct, cal.rms_after)),
               "| after, cross-validated | %s |" % " | ".join(map(pct, cal.cv_after)),
               "| after / before, cross-validated | %s |" % " | ".join(
-                  "%.2f" % r for r in cal.cv_after / cal.cv_before), "",
-              "## What entered", "",
-              "The output models in turn, then rounds over the parameter groups: each round takes the group that "
-              "lowers the mean cross-validated rms most, if by at least %g %% of it." % (100 * MIN_GAIN),
-              "", "| candidate | cv rms before, % | with it, % | entered |", "|---|---|---|---|"]
-    lines += ["| %s | %s | %s | %s |" % (s["candidate"], pct(s["cv_rms_before"]), pct(s["cv_rms"]),
-                                         "yes" if s["entered"] else "no") for s in cal.steps]
-    lines += ["", "## Parameters (σ: jackknife over rows)", "", "| parameter | value | σ | bounds | notes |",
-              "|---|---|---|---|---|"]
-    lines += ["| %s | %.4g %s | %.2g | %g .. %g | %s |" % (p["parameter"], p["value"], p["unit"], p["sigma"],
-                                                           p["lower"], p["upper"], "; ".join(p["notes"]))
-              for p in cal.parameters]
+                  "%.2f" % r for r in cal.cv_after / cal.cv_before)]
+    if cal.check is not None:
+        c = cal.check
+        lines += ["| held out (%d sites), before | %s |" % (c["sites"], " | ".join(map(pct, c["rms_before"]))),
+                  "| held out, after | %s |" % " | ".join(map(pct, c["rms_after"])),
+                  "| held out, after / before | %s |" % " | ".join(
+                      "—" if not np.isfinite(r) else "%.2f" % r for r in c["rms_after"] / c["rms_before"])]
+    lines += ["", "Cross-validated: each row of sites predicted by the whole fit made without it.  The readings' "
+              "scatter the fit assumed: %s %% per band, correlation %.2f between one site's bands."
+              % ("-".join(pct(v) for v in (cal.noise["sigma"].min(), cal.noise["sigma"].max())), cal.noise["rho"]),
+              "", "## What was fitted", "",
+              "Each parameter has a prior centred on the scene as described; it is fitted only if the survey shrinks "
+              "its σ to %g of the prior's or less, and left at its nominal value if the fit pushes it to a bound."
+              % mdl.IDENTIFIED, "",
+              "| parameter | value | σ | prior σ | σ / prior σ | fitted | why not |", "|---|---|---|---|---|---|---|"]
+    lines += ["| %s | %.4g %s | %.2g | %.2g | %.2f | %s | %s |" % (
+        p["parameter"], p["value"], p["unit"], p["sigma"], p["prior_sigma"], p["sigma_over_prior"],
+        "yes" if p["fitted"] else "no", "; ".join(p["notes"])) for p in cal.parameters]
     lines += ["", "Lamp outputs relative to the scene's (power-weighted mean 1 per band), ± σ:", "",
               "| lamp | %s |" % " | ".join(cal.bands), "|---|%s" % ("---|" * len(cal.bands))]
     lines += ["| %s | %s |" % (lamp, " | ".join("%.3f ± %.3f" % (f, s) for f, s in zip(cal.output_factor[i],
                                                                                           cal.output_sigma[i])))
               for i, lamp in enumerate(cal.lamps)]
     lines += ["", "Lamp flux, µmol s⁻¹: %s" % ", ".join("%s %.4g" % (b, f) for b, f in zip(cal.bands, cal.lamp_flux))]
+    if cal.probes:
+        lines += ["", "## The fitted light away from the survey", "",
+                  "Relative σ of the fitted light (mean over bands) on a grid over the chamber's plan, at each height: "
+                  "from the posterior of what was fitted and the prior of what was not.  Constrained: σ at most %g "
+                  "times its value at the survey's sites." % CONSTRAINED, "",
+                  "| z | probes | σ median, % | σ max, % | constrained |", "|---|---|---|---|---|"]
+        lines += ["| %g %s | %d | %s | %s | %.0f %% |" % (r["z"], r["unit"], r["probes"], pct(r["sigma_median"]),
+                                                       pct(r["sigma_max"]), 100 * r["constrained_share"])
+                  for r in cal.probes]
     if cal.warnings:
         lines += ["", "## Warnings", ""] + ["* " + w for w in cal.warnings]
     return "\n".join(lines) + "\n"
 
 
 def site_rows(cal: Calibration) -> list:
-    """sites.csv: one row per site and band."""
-    s = cal.survey
+    """sites.csv: one row per site and band (the held-out survey's too, ``fitted`` false)."""
     out = []
-    measured = s.values[:, s.columns]
-    for i in range(len(s)):
-        for b, band in enumerate(cal.bands):
-            out.append({"line": int(s.line[i]), "row": int(s.row[i]), "x": s.sensors.center[i, 0],
-                        "y": s.sensors.center[i, 1], "z": s.sensors.center[i, 2], "band": band,
-                        "measured": measured[i, b], "before": cal.before.predicted[i, b], "after": cal.final[i, b]})
+    parts = [(cal.survey, cal.before, cal.final, True)]
+    if cal.check is not None:
+        parts.append((cal.check["held"], cal.check["before"], cal.check["after"], False))
+    for s, before, after, fitted in parts:
+        measured = s.values[:, cal.survey.columns]
+        for i in range(len(s)):
+            for b, band in enumerate(cal.bands):
+                out.append({"survey": s.path, "fitted": fitted, "line": int(s.line[i]), "row": int(s.row[i]),
+                            "x": s.sensors.center[i, 0], "y": s.sensors.center[i, 1], "z": s.sensors.center[i, 2],
+                            "band": band, "measured": measured[i, b], "before": before[i, b], "after": after[i, b]})
     return out
 
 
@@ -618,7 +586,7 @@ def rows_picture(path, cal: Calibration, bands=None) -> None:
                 k = np.flatnonzero(at & (s.row == r))
                 k = k[np.argsort(s.sensors.center[k, 0])]
                 x = s.sensors.center[k, 0] + 0.0
-                ax.plot(x, y[k, b] / cal.before.predicted[k, b], color="0.6", lw=0.8)
+                ax.plot(x, y[k, b] / cal.before[k, b], color="0.6", lw=0.8)
                 ax.plot(x, y[k, b] / cal.final[k, b], color="C3", lw=0.8)
             ax.axhline(1, color="k", lw=0.5)
             ax.set_title("%s nm, z = %g: measured / simulated (grey before, red after)" % (cal.bands[b], h), fontsize=8)
@@ -650,5 +618,5 @@ def write_outputs(out, cal: Calibration, base: str, scene_name: str, plot: bool 
     return written
 
 
-__all__ = ["calibrate", "LampRuns", "Parameter", "Fit", "Calibration", "OUTPUT_MODELS", "candidate_parameters",
-           "fit", "cross_validated", "jackknife", "write_outputs", "scene_text", "summary"]
+__all__ = ["calibrate", "LampRuns", "Parameter", "Calibration", "candidate_parameters", "probe_sites", "write_outputs",
+           "scene_text", "summary", "report_text"]
