@@ -14,7 +14,9 @@ Splits (``--splits``, all by default):
 * ``column-110``, ``column-710``, ``column-1210``: the 10 sites of one column (one x) at z = 1000 mm fitted,
   the other 230 held out: a survey on one line at one height;
 * ``row-930``, ``row-1830``: the 12 sites of one y-row at z = 1000 mm fitted, the other 228 held out;
-* ``height-1000``: the 120 sites at z = 1000 mm fitted, z = 1400 mm held out.
+* ``height-1000``: the 120 sites at z = 1000 mm fitted, z = 1400 mm held out;
+* ``whole``: all 240 sites fitted, nothing held out (what ``lpy-light calibrate angers-12bands survey-v.csv``
+  does; with ``--out`` its report and ``rows.png``).
 
 All splits share one set of lamp runs over the 240 sites and the probes (``--cache DIR`` keeps them between
 invocations).  ~35 runs of ``--photons`` (2·10⁶: ~10 s each on 2 cores) plus up to 12 per split.
@@ -69,6 +71,7 @@ def splits(survey):
         m = low & np.isclose(y, r)
         out["row-%d" % r] = (m, ~m, None)
     out["height-1000"] = (low, ~low, None)
+    out["whole"] = (np.ones(len(x), bool), np.zeros(len(x), bool), None)
     return out
 
 
@@ -116,6 +119,7 @@ def main(argv=None):
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--cache", default=None, help="folder keeping the lamp runs between invocations")
     ap.add_argument("--json", default=None, help="write the figures here")
+    ap.add_argument("--out", default=None, help="write each split's calibrate outputs in OUT/SPLIT")
     args = ap.parse_args(argv)
     chamber = load_scene(resolve_scene("angers-12bands"))
     survey = read_survey(SURVEY, chamber)
@@ -127,17 +131,23 @@ def main(argv=None):
                     say=lambda t: None)
     S = len(survey)
     chosen = splits(survey)
-    names = args.splits.split(",") if args.splits else list(chosen)
+    names = args.splits.split(",") if args.splits else [n for n in chosen if n != "whole"]
     results = {}
     for name in names:
         fit_mask, held_mask, rows = chosen[name]
-        fitted, held = subset(survey, fit_mask, rows), subset(survey, held_mask)
+        fitted = subset(survey, fit_mask, rows)
+        held = subset(survey, held_mask) if held_mask.any() else None
         own_probes, _, _ = cal_mod.probe_sites(chamber, fitted)
         assert np.allclose(own_probes.center, probes.center), "a split's probes differ from the shared runs'"
         index = np.concatenate([np.flatnonzero(fit_mask), np.flatnonzero(held_mask), S + np.arange(len(probes))])
         t = time.perf_counter()
         cal = cal_mod.calibrate(chamber, fitted, check=held, runs=View(runs, index))
         seconds = time.perf_counter() - t
+        if args.out:
+            cal_mod.write_outputs(Path(args.out) / name, cal, "angers-12bands", "angers-12bands")
+        if held is None:
+            print(cal_mod.report_text(cal, "angers-12bands, %s" % name))
+            continue
         rb, ra = cal.check["rms_before"], cal.check["rms_after"]
         ratio = ra / rb
         honest = cal.cv_after / ra

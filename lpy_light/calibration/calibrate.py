@@ -11,14 +11,14 @@ each θ).  Only what the survey identifies is fitted; the rest stays at its nomi
 why.  After the fit the lamps are traced again at the fitted θ and the model linearised there
 (:data:`OUTER` times); the final residuals are those of that run, not of the linear model.
 
-The same runs light three more sets of sites, never fitted: the survey's cross-validation folds (whole rows
-left out, the whole fit repeated without them), ``check`` (a held-out survey: its rms before and after is
-what the fit bought), and probes over the chamber (:func:`probe_sites`: the fitted light's σ away from the
-survey, from the posterior of what was fitted and the prior of what was not).
+The same runs light sites that are never fitted: the survey's cross-validation folds (whole rows left out,
+the whole fit repeated without them), ``check`` (a held-out survey: its rms before and after is what the fit
+bought), and probes over the chamber (:func:`probe_sites`: the fitted light's σ away from the survey, from
+every parameter's posterior).
 
 Outputs (:func:`write_outputs`): ``scene.toml`` (the original scene plus ``[lamps.*]``, ``[materials.*]`` and
 ``lamp_flux``: :mod:`lpy_light.chamber.overrides`), ``calibration.json``, ``report.md``, ``sites.csv`` (each
-site and band, measured and simulated before and after), ``probes.csv`` and, with matplotlib, ``rows.png``.
+site and band, measured and simulated before and after) and, with matplotlib, ``rows.png``.
 """
 from __future__ import annotations
 
@@ -488,8 +488,9 @@ def summary(cal: Calibration) -> dict:
         "lamp_flux": per_band(cal.lamp_flux),
         "away_from_the_survey": {"probes": cal.probes,
                                  "how": "relative σ of the fitted light (mean over bands) on a grid over the chamber's "
-                                        "plan at each height: the posterior of what was fitted, the prior of what "
-                                        "was not"},
+                                        "plan at each height, from every parameter's posterior (readings' scatter "
+                                        "not included); constrained: at most %g times its median at the survey's "
+                                        "sites" % CONSTRAINED},
         "uncertainty": "posterior σ (the model's Gauss-Newton Hessian, readings' scatter estimated from the "
                        "residuals); the lamp runs' own noise is not in it",
         "warnings": cal.warnings,
@@ -540,9 +541,10 @@ def report_text(cal: Calibration, scene_name: str) -> str:
     lines += ["", "Lamp flux, µmol s⁻¹: %s" % ", ".join("%s %.4g" % (b, f) for b, f in zip(cal.bands, cal.lamp_flux))]
     if cal.probes:
         lines += ["", "## The fitted light away from the survey", "",
-                  "Relative σ of the fitted light (mean over bands) on a grid over the chamber's plan, at each height: "
-                  "from the posterior of what was fitted and the prior of what was not.  Constrained: σ at most %g "
-                  "times its value at the survey's sites." % CONSTRAINED, "",
+                  "Relative σ of the fitted light (mean over bands) on a %d × %d grid over the chamber's plan, at each "
+                  "height, from every parameter's posterior (what the survey cannot tell keeps about its prior σ); "
+                  "the readings' own scatter is not in it.  Constrained: σ at most %g times its median at the "
+                  "survey's sites." % (PROBE_GRID, PROBE_GRID, CONSTRAINED), "",
                   "| z | probes | σ median, % | σ max, % | constrained |", "|---|---|---|---|---|"]
         lines += ["| %g %s | %d | %s | %s | %.0f %% |" % (r["z"], r["unit"], r["probes"], pct(r["sigma_median"]),
                                                        pct(r["sigma_max"]), 100 * r["constrained_share"])

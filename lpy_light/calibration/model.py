@@ -182,13 +182,15 @@ def noise_of(r: np.ndarray, dof: float = 0.0) -> Noise:
 
 @dataclass
 class Solution:
-    """A fit: ``phi`` (n,), ``free`` (n,) bool, ``cov`` (n, n) the posterior covariance (prior σ² where not
-    free), ``noise``, ``at`` (P,) the θ the runs were traced at, ``notes`` {index: why it was left at its nominal
-    value}, ``ratio`` (n,) posterior σ / prior σ when everything was free (NaN without prior)."""
+    """A fit: ``phi`` (n,), ``free`` (n,) bool, ``cov`` (n, n) the fitted parameters' covariance (prior σ² where
+    not free), ``joint`` (n, n) every parameter's posterior (:func:`posterior`), ``noise``, ``at`` (P,) the θ
+    the runs were traced at, ``notes`` {index: why it was left at its nominal value}, ``ratio`` (n,) σ / prior σ
+    when everything was free (0 without prior), ``residuals`` (S, B)."""
 
     phi: np.ndarray
     free: np.ndarray
     cov: np.ndarray
+    joint: np.ndarray
     noise: Noise
     at: np.ndarray
     notes: dict
@@ -261,6 +263,17 @@ def map_fit(lay: Layout, y, X0, J, at, free, noise: Noise, phi=None, iterations:
     return phi, H_inv @ M @ H_inv, (y - f) / y
 
 
+def posterior(lay: Layout, y, X0, J, at, phi, noise: Noise) -> np.ndarray:
+    """(n, n) the posterior covariance of every parameter, fitted or not, at φ: the survey's information with
+    one site's bands correlated (R) plus the priors'.  What the light's σ away from the survey is drawn from:
+    the survey constrains combinations of parameters it cannot tell apart one by one."""
+    f, _, _ = light(lay, phi, X0, J, at)
+    A = np.einsum("cb,sbn->scn", noise.W, -derivatives(lay, phi, X0, J, at) / y[:, :, None])
+    R_inv = np.linalg.inv(noise.R)
+    prior = np.where(np.isfinite(lay.sigma), 1.0 / np.where(np.isfinite(lay.sigma), lay.sigma, 1.0) ** 2, 0.0)
+    return np.linalg.pinv(np.einsum("sbn,bc,scm->nm", A, R_inv, A) + np.diag(prior), hermitian=True)
+
+
 def _effective_parameters(lay: Layout, k, cov_k) -> float:
     """How many parameters the data fitted: one per free parameter without prior, 1 − σ_post²/σ_prior² for
     each with one."""
@@ -326,7 +339,7 @@ def solve(lay: Layout, y, X0, J, at=None) -> Solution:
     phi, cov, r = map_fit(lay, y, X0, J, at, everything, noise, phi)
     ratio = identified_ratio(lay, cov)
     free = ~(ratio > IDENTIFIED)
-    notes = {int(i): "not identified by the survey (posterior σ %.2f of the prior's)" % ratio[i]
+    notes = {int(i): "not identified by the survey (its σ from the survey %.2f of the prior's)" % ratio[i]
              for i in np.flatnonzero(~free)}
     for _ in range(lay.P + 1):
         start = _initial(lay, X0, y)
@@ -342,7 +355,8 @@ def solve(lay: Layout, y, X0, J, at=None) -> Solution:
     k = np.flatnonzero(free)
     noise = noise_of(r, _effective_parameters(lay, k, cov_k))
     phi, cov_k, r = map_fit(lay, y, X0, J, at, free, noise, phi)
-    return Solution(phi, free, _full_cov(lay, free, cov_k), noise, at, notes, ratio, r)
+    return Solution(phi, free, _full_cov(lay, free, cov_k), posterior(lay, y, X0, J, at, phi, noise), noise, at,
+                    notes, ratio, r)
 
 
 def predict(lay: Layout, sol: Solution, X0, J) -> np.ndarray:
@@ -351,11 +365,12 @@ def predict(lay: Layout, sol: Solution, X0, J) -> np.ndarray:
 
 
 def predicted_sigma(lay: Layout, sol: Solution, X0, J) -> np.ndarray:
-    """(S, B) the relative σ of the predicted light at the sites of ``X0``: the posterior of what was fitted and
-    the prior of what was not (a lamp's unidentified height counts with its prior σ)."""
+    """(S, B) the relative σ of the predicted light at the sites of ``X0``, from every parameter's posterior
+    (:func:`posterior`: a lamp's height the survey cannot tell counts with nearly its prior σ where it matters,
+    above the survey, and little at the survey's sites, whose light it fits in combination with the rest)."""
     f, _, _ = light(lay, sol.phi, X0, J, sol.at)
     D = derivatives(lay, sol.phi, X0, J, sol.at)
-    var = np.einsum("sbi,ij,sbj->sb", D, sol.cov, D)
+    var = np.einsum("sbi,ij,sbj->sb", D, sol.joint, D)
     return np.sqrt(np.maximum(var, 0.0)) / np.where(f > 0, f, np.inf)
 
 
