@@ -144,8 +144,14 @@ def test_the_fitted_scene_runs_and_gives_the_survey_back(synthetic, tmp_path):
     out = tmp_path / "fit"
     calibrate.write_outputs(out, cal, str(base), "room", plot=False)
     text = (out / "scene.toml").read_text()
-    assert "[lamps.lampB]" in text and "lamp_flux" in text
+    assert "[lamps.lampB]" in text and "lamp_flux" in text and "[surveyed]" in text
     ch = load_scene(out / "scene.toml", sensors=str(tmp / "room" / "sites.csv"))
+    # the region the survey constrains travels with the scene: a plant inside it is not warned about, one that
+    # rises above it is, with the fitted light's σ at its height
+    from lpy_light.calibration.survey import outside_survey
+    assert ch.surveyed is not None and outside_survey(ch.surveyed, [900, 900, 1300], [1100, 1100, 1500]) is None
+    warning = outside_survey(ch.surveyed, [900, 900, 1300], [1100, 1100, 1900], "mm")
+    assert warning and "beyond the region the calibration's survey constrains" in warning
     ks = simulate.KernelScene(ch, estimator="nee")
     ks.prune_next_events()
     r = simulate.run(ks, 2_000_000, seed=21)
@@ -180,6 +186,12 @@ def test_a_bad_row_is_refused_with_its_line_and_nothing_is_written(tmp_path, cha
     line = [ln for ln in p.stderr.splitlines() if "error" in ln]
     assert len(line) == 1 and "%s:6:" % survey in line[0] and what in line[0], p.stderr
     assert not out.exists() or not any(out.iterdir())
+
+
+def test_a_bad_surveyed_table_is_refused_with_its_line(tmp_path):
+    scene = room(tmp_path / "room", extra='[surveyed]\nlower = [0, 0]\nupper = [1, 1, 1]\n')
+    with pytest.raises(InputError, match=r"scene.toml:\d+: \[surveyed\] needs lower"):
+        load_scene(scene)
 
 
 def test_a_band_the_scene_lacks_is_refused(tmp_path):

@@ -398,7 +398,19 @@ def calibrate(chamber, survey, photons: int = 2_000_000, seed: int = 1, threads=
                       {"sigma": sol.noise.sigma, "rho": sol.noise.rho}, probe_rows, held, warnings, runs.photons,
                       time.perf_counter() - t0, runs.runs)
     out.scene_overrides = _scene_tables(chamber, lamps, measured, fitted_outputs, factor, params, theta, flux)
+    out.scene_overrides["surveyed"] = _surveyed(survey, probe_rows)
     return out
+
+
+def _surveyed(survey, probe_rows) -> dict:
+    """The fitted scene's ``[surveyed]`` table: the box of the survey's sites, a margin of their median spacing
+    (nearest neighbour), and the fitted light's σ over the chamber at each probe height."""
+    c = survey.sensors.center
+    d = np.linalg.norm(c[:, None, :] - c[None, :, :], axis=2)
+    np.fill_diagonal(d, np.inf)
+    margin = float(np.median(d.min(axis=1))) if len(c) > 1 else 0.0
+    return {"lower": [float(v) for v in c.min(axis=0)], "upper": [float(v) for v in c.max(axis=0)],
+            "margin": margin, "sigma": [[float(r["z"]), float(r["sigma_median"])] for r in probe_rows]}
 
 
 def _scene_tables(chamber, lamps, measured, fitted_outputs, factor, params, theta, flux) -> dict:
@@ -454,6 +466,10 @@ def scene_text(base: str, cal: Calibration, survey_path: str) -> str:
             lines.append("")
             lines.append("[%s.%s]" % (table, name))
             lines += ["%s = %s" % (k, _toml_value(v)) for k, v in keys.items()]
+    if "surveyed" in t:
+        lines += ["", "# where the survey constrains the light (its sites' box, a margin, scene units) and the fitted",
+                  "# light's relative σ over the chamber at each height: a plant beyond it is warned about",
+                  "[surveyed]"] + ["%s = %s" % (k, _toml_value(v)) for k, v in t["surveyed"].items()]
     return "\n".join(lines) + "\n"
 
 

@@ -72,6 +72,7 @@ class Chamber:
     calibration: tuple | None = None     # (measured csv Path, tolerance or None): units.read_measured
     lamp_flux: np.ndarray | None = None  # (B,) µmol s-1 the lamps emit per band (a scene's lamp_flux), or None
     overrides: dict = field(default_factory=dict)  # what the scene's [lamps.*] / [materials.*] tables changed
+    surveyed: dict | None = None  # the region a calibration's survey constrains ([surveyed]: lower, upper, margin, sigma)
     inputs: list = field(default_factory=list)   # the files the scene was read from (Paths)
     source: str = ""
 

@@ -67,7 +67,7 @@ log = logging.getLogger("lpy_light")
 SCALE_FACTOR_UNITS = {1000.0: "mm", 100.0: "cm", 10.0: "dm", 1.0: "m", 0.001: "km"}
 _SCENE_KEYS = {"geometry", "sensors", "unit", "optical", "specularities", "bands", "solid_sensors", "remove",
                "physics", "spectrum", "calibration", "name", "plant_position", "flip_normals",
-               "lamps", "materials", "lamp_flux"}
+               "lamps", "materials", "lamp_flux", "surveyed"}
 #: keys holding paths (relative to the scene file that gives them)
 _PATH_KEYS = ("geometry", "sensors", "optical", "specularities", "spectrum", "solid_sensors")
 _PHYSICS_KEYS = {"one_sided": bool, "lamps": str, "specular": str, "max_depth": int, "offset": float,
@@ -402,6 +402,9 @@ def chamber_from_spec(spec: dict, base: Path, name: str = "<scene>", text: str =
             chamber.overrides[key] = apply(chamber, table, err)
     if spec.get("lamp_flux") is not None:
         chamber.lamp_flux = overrides.lamp_flux(spec["lamp_flux"], chamber.n_bands, err)
+    if spec.get("surveyed") is not None:
+        from ..calibration.survey import read_surveyed
+        chamber.surveyed = read_surveyed(spec["surveyed"], err)
     if pos is not None:
         chamber.plant_position = [float(x) for x in pos]
     cal = spec.get("calibration")
