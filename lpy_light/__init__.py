@@ -21,9 +21,9 @@ __version__ = "0.1.0"
 
 def __getattr__(name):
     # LightModel is imported lazily so that ``import lpy_light`` stays light
-    if name == "LightModel":
-        from .plant.light import LightModel
-        return LightModel
+    if name == "LightModel":       # in the L-Py IDE, with its window alive (lpy_light.plant.ide)
+        from .plant.ide import imported
+        return imported("lpy_light.plant.light").LightModel
     if name == "par_colour":
         from .plant.plant_view import par_colour
         return par_colour

@@ -36,6 +36,7 @@ from dataclasses import replace
 import numpy as np
 
 from ..run import simulate
+from . import ide
 from ..chamber import units
 from .precision import organs_sigma_over_goal, parse_goal, sigma_over_goal
 from ..errors import InputError
@@ -210,7 +211,9 @@ class LightModel:
                  precision=None, lamp_scale=1.0, colour_top: float | None = None,
                  one_sided_organs: bool = False, cone_rays: float | None = None, local_rays: float | None = None,
                  reuse=None, field=None):
-        self.chamber = scene if hasattr(scene, "triangles") else load_scene(resolve_scene(str(scene)))
+        self._pending = None          # a step's worker that Stop in the L-Py IDE left running (lpy_light.plant.ide)
+        live = ide.live(doing="reading the chamber")        # None outside a GUI: plain calls
+        self.chamber = scene if hasattr(scene, "triangles") else _call(live, load_scene, resolve_scene(str(scene)))
         if plant_unit not in UNITS:
             raise InputError("unknown plant_unit %r (use one of %s)" % (plant_unit, ", ".join(UNITS)))
         self.scale = UNITS[plant_unit] / self.chamber.metres_per_unit
@@ -222,8 +225,9 @@ class LightModel:
         self.progress = progress
         self.estimator = estimator_named(estimator).name
         # a stored estimator traces with nee's records: the store's trace, the gather and the paths are its events
-        self.kscene = simulate.KernelScene(self.chamber, estimator="nee" if estimator_named(estimator).stored
-                                           else estimator, one_sided_organs=one_sided_organs)
+        self.kscene = _call(live, simulate.KernelScene, self.chamber,
+                            estimator="nee" if estimator_named(estimator).stored else estimator,
+                            one_sided_organs=one_sided_organs)
         self.keeper = _keeper(self.estimator, reuse, field, seed)
         self.kscene.configure(**_plant_settings(nee_picks=nee_picks, cone_rays=cone_rays, local_rays=local_rays))
         _plant_settings(mirror_events=mirror_events)         # checked here, used at each step (_mirror_events)
@@ -244,7 +248,9 @@ class LightModel:
         self.last_organs = []
         self.colour_top = colour_top      # PAR shown in yellow in the pictures (the viewer's par_colour scale)
         self.messages = OncePerKind()     # each kind of warning once per model (a growth run), then counted
-        self.flux, self.flux_std = self._lamp_flux(lamp_flux, normalisation_photons)
+        if live is not None:
+            live.show("the lamps' normalisation run")
+        self.flux, self.flux_std = _call(live, self._lamp_flux, lamp_flux, normalisation_photons, live)
         factor = lamp_factors(lamp_scale, self.chamber)
         self.flux, self.flux_std = self.flux * factor, self.flux_std * factor
         self._chamber_box = (self.chamber.triangles.min(axis=(0, 1)), self.chamber.triangles.max(axis=(0, 1)))
@@ -284,7 +290,7 @@ class LightModel:
             self.materials[name] = plant_material(spec, name, self.chamber)
         return name, name
 
-    def _lamp_flux(self, lamp_flux, n):
+    def _lamp_flux(self, lamp_flux, n, live=None):
         B = self.chamber.n_bands
         if lamp_flux is not None:
             flux = np.broadcast_to(np.asarray(lamp_flux, dtype=float), (B,)).copy()
@@ -298,7 +304,7 @@ class LightModel:
             raise InputError("the light model needs the lamps' photon flux: give lamp_flux=[µmol/s per band] or "
                              "a scene with 'spectrum', 'bands' and reference sensors", ch.source or None)
         self.kscene.prune_next_events(threads=self.threads)
-        result = simulate.run(self.kscene, n, seed=self.seed + 7919, threads=self.threads)
+        result = simulate.run(self.kscene, n, seed=self.seed + 7919, threads=self.threads, **_live_arguments(live))
         photons, std = result.sensors()
         norm = units.from_spectrum(photons, std, ch.sensors.area * ch.metres_per_unit ** 2, ch.spectrum, ch.bands)
         self.normalisation = norm
@@ -347,7 +353,7 @@ class LightModel:
         with self.warnings_once():
             return self._run(organs, photons)
 
-    def _run(self, organs, photons):
+    def _run(self, organs, photons, live=None):
         n = _photons(photons) if photons is not None else self.photons
         t0 = time.perf_counter()
         compiled = getattr(self.kscene, "compile_seconds", 0.0)
@@ -377,8 +383,10 @@ class LightModel:
             result = self._reuse_step(organs, precision_of, read)
         else:
             result = simulate.run(self.kscene, n, seed=self.seed + self.step, threads=self.threads,
-                                  progress=self.progress, precision=None if precision_of is None else 1.0,
-                                  precision_of=precision_of)
+                                  precision=None if precision_of is None else 1.0, precision_of=precision_of,
+                                  **_live_arguments(live, self.progress))
+        if live is not None and live.stop_asked():
+            raise ide.Stopped("stopped in the L-Py IDE: step %d's light not written" % self.step)
         if result.interrupted:
             raise KeyboardInterrupt      # Ctrl-C ends the growth (cmd_grow keeps the steps done), not one step
         lights = organ_lights(self.kscene, result, organs, self.flux, self.flux_std, self.chamber, read)
@@ -494,29 +502,87 @@ class LightModel:
           ``frameDisplay(True)`` in ``StartEach`` (see :mod:`lpy_light.plant.lpy`).
         * ``intercept({key: mesh or (mesh, material)})``: returns ``{key: OrganLight}`` (None for an organ
           no sample of the step reached, as the rules get it).
+
+        In the L-Py IDE (a Qt application's GUI thread, or its "use thread"), the step keeps the window alive, names
+        itself in the status bar and ends at once on Stop, its light then not written (for meshes: raises
+        :class:`lpy_light.plant.ide.Stopped`): :mod:`lpy_light.plant.ide`.  The numbers are the same.
         """
         with self.warnings_once(), preserved_locale():     # PlantGL sets the C locale and leaves it so
-            if isinstance(organs, Mapping):
-                return for_rules(self.run(self.organs_from_meshes(organs)).organs)
-            return self._intercept_lstring(organs, lscene)
+            live = ide.live(ide.step_label())       # in the L-Py IDE (a Qt GUI): the window stays alive; else None
+            if live is None:
+                _wait(getattr(self, "_pending", None))
+                if isinstance(organs, Mapping):
+                    return for_rules(self.run(self.organs_from_meshes(organs)).organs)
+                return self._intercept_lstring(organs, lscene)
+            with live:
+                live.wait(getattr(self, "_pending", None))
+                self._pending = None
+                try:
+                    if isinstance(organs, Mapping):
+                        live.show("lighting %d organs" % len(organs))
+                        return for_rules(live.call(self._live_run, self.organs_from_meshes(organs), live).organs)
+                    return self._intercept_lstring(organs, lscene, live)
+                except ide.Stopped:
+                    if live.worker is not None and live.worker.is_alive():
+                        self._pending = live.worker       # told to stop: the next step waits for it
+                    live.show("stopped: this step's light is not written")
+                    if isinstance(organs, Mapping):
+                        raise
+                    log.warning("stopped in the L-Py IDE during step %d: its organs' light was not written "
+                                "(they keep the light they had)", self.step)
+                    return organs, lscene
 
-    def _intercept_lstring(self, lstring, lscene):
-        """One L-Py step: the scene's organ shapes → organs → a run → each organ's light in its module."""
+    def _live_run(self, organs, live):
+        """:meth:`run` in the worker of a step with the GUI alive (:mod:`lpy_light.plant.ide`)."""
+        with self.warnings_once():
+            return self._run(organs, None, live)
+
+    def _intercept_lstring(self, lstring, lscene, live=None):
+        """One L-Py step: the scene's organ shapes → organs → a run → each organ's light in its module (``live``:
+        with the GUI alive, :mod:`lpy_light.plant.ide`)."""
         from . import lpy
         hits, misses = self.cache.hits, self.cache.misses
         t0 = time.perf_counter()
         materials = {name: self._materials_of(spec) for name, spec in self.organ_materials.items()}
-        organs = lpy.plant_organs(lstring, lscene, materials, self.scale, self.position, self.cache)
+        if live is not None:
+            live.show("reading the plant's organs")
+        organs = lpy.plant_organs(lstring, lscene, materials, self.scale, self.position, self.cache,
+                                  tick=None if live is None else live.tick)
         convert = time.perf_counter() - t0
-        step = self.run(organs)
+        if live is None:
+            step = self.run(organs)
+        else:
+            live.show("lighting %d organs" % len(organs))
+            step = live.call(self._live_run, organs, live)
         step.reused, step.tessellated = self.cache.hits - hits, self.cache.misses - misses
         step.extra["convert_seconds"] = convert
         self.last_step, self.last_organs = step, organs
         if self.parameter is not None:
             lpy.write_parameters(lstring, for_rules(step.organs), self.parameter)
+        if live is not None:
+            live.show("lit %d organs in %.1f s" % (len(organs), step.seconds))
         if self.on_step is not None:
             self.on_step(step, organs)
         return lstring, lscene
+
+
+def _call(live, fn, *args, **kwargs):
+    """``fn(*args, **kwargs)``: in a worker with the GUI alive where ``live`` (:mod:`lpy_light.plant.ide`), else
+    here."""
+    return fn(*args, **kwargs) if live is None else live.call(fn, *args, **kwargs)
+
+
+def _live_arguments(live, progress=None) -> dict:
+    """A kernel run's ``progress`` (and, with the GUI alive, its ``stop``): ``progress`` alone outside a GUI."""
+    if live is None:
+        return {"progress": progress}
+    return {"progress": live.progress(progress), "stop": live.stop_asked}
+
+
+def _wait(worker):
+    """Wait for a step's worker that Stop in the L-Py IDE left running (it uses the light model's kernel scene)."""
+    if worker is not None:
+        worker.join()
 
 
 #: LightModel's arguments that are next-event settings (:class:`lpy_light.estimators.registry.NextEventSettings`)

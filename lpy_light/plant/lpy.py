@@ -65,15 +65,18 @@ def require_plantgl():
 
 # -- plain functions (no L-Py needed) --------------------------------------------------------
 def organs_from_meshes_by_id(meshes_by_id: dict, module_names: dict, materials_of, scale: float,
-                             position) -> list:
+                             position, tick=None) -> list:
     """Organs (chamber units) from ``{id: [(vertices, faces), ...]}`` in the plant's unit (a module's several
     shapes are merged into one organ).
 
     ``module_names`` maps id → module name; ``materials_of(module name)`` gives the module's ``(front, back)``
     material names; ``scale`` (chamber units per plant unit) and ``position`` ((3,) chamber units) place the plant.
+    ``tick()``, if given, is called before each organ (the L-Py IDE's window kept alive: :mod:`lpy_light.plant.ide`).
     """
     organs = []
     for key in sorted(meshes_by_id):
+        if tick is not None:
+            tick()
         parts = meshes_by_id[key]
         name = module_names[key]
         vertices, faces, base = [], [], 0
@@ -235,11 +238,14 @@ def _tessellate(shape, pgl, topology=None, faces_of=None):
     return points, faces
 
 
-def shapes_by_module(lstring, lscene, names, cache):
-    """``({id: [(vertices, faces), ...]}, {id: module name})`` for the shapes of modules in ``names``."""
+def shapes_by_module(lstring, lscene, names, cache, tick=None):
+    """``({id: [(vertices, faces), ...]}, {id: module name})`` for the shapes of modules in ``names``; ``tick()``, if
+    given, is called before each shape."""
     pgl = require_plantgl()
     meshes, modules = {}, {}
     for i in range(len(lscene)):
+        if tick is not None:
+            tick()
         shape = lscene[i]
         sid = shape.id
         if sid == pgl.Shape.NOID or sid < 0 or sid >= len(lstring):
@@ -257,12 +263,14 @@ def shapes_by_module(lstring, lscene, names, cache):
     return meshes, modules
 
 
-def plant_organs(lstring, lscene, materials_of, scale, position, cache) -> list:
+def plant_organs(lstring, lscene, materials_of, scale, position, cache, tick=None) -> list:
     """The organs of an L-Py step: the shapes of the modules ``materials_of`` knows (a mapping module name →
-    ``(front, back)``), tessellated (``cache``: by geometry, across steps) and placed in the chamber."""
+    ``(front, back)``), tessellated (``cache``: by geometry, across steps) and placed in the chamber.  ``tick()``, if
+    given, is called between shapes and between organs: the L-Py IDE's window turns its event loop there
+    (:meth:`lpy_light.plant.ide.Live.tick`), PlantGL being called from this thread only."""
     if lscene is None:
         raise LpyLightError("intercept() got no scene (lscene is None): L-Py builds it only on the last step of a "
                              "derive() unless the model calls frameDisplay(True) in StartEach — add "
                              "'def StartEach(): frameDisplay(True)' to the .lpy file")
-    meshes, modules = shapes_by_module(lstring, lscene, set(materials_of), cache)
-    return organs_from_meshes_by_id(meshes, modules, materials_of.__getitem__, scale, position)
+    meshes, modules = shapes_by_module(lstring, lscene, set(materials_of), cache, tick)
+    return organs_from_meshes_by_id(meshes, modules, materials_of.__getitem__, scale, position, tick)
