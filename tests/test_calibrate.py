@@ -148,7 +148,7 @@ def test_the_fitted_scene_runs_and_gives_the_survey_back(synthetic, tmp_path):
     ch = load_scene(out / "scene.toml", sensors=str(tmp / "room" / "sites.csv"))
     # the region the survey constrains travels with the scene: a plant inside it is not warned about, one that
     # rises above it is, with the fitted light's σ at its height
-    from lpy_light.calibration.survey import outside_survey
+    from lpy_light.chamber.overrides import outside_survey
     assert ch.surveyed is not None and outside_survey(ch.surveyed, [900, 900, 1300], [1100, 1100, 1500]) is None
     warning = outside_survey(ch.surveyed, [900, 900, 1300], [1100, 1100, 1900], "mm")
     assert warning and "beyond the region the calibration's survey constrains" in warning

@@ -271,6 +271,25 @@ def test_a_plant_where_it_cannot_be_is_named_once(black_room, caplog):
     assert "outside_chamber" not in inside.extra
 
 
+def test_a_plant_above_what_a_calibration_surveyed_is_warned_about_once(black_room, caplog):
+    """A fitted chamber carries where its survey constrains the light ([surveyed], lpy-light calibrate): a plant
+    that grows above it is told, once, with the fitted light's σ at its height."""
+    from lpy_light.chamber.scene import load_scene
+    from lpy_light.chamber.overrides import read_surveyed
+
+    chamber = load_scene(black_room)
+    chamber.surveyed = read_surveyed({"lower": [400, 400, 300], "upper": [600, 600, 300], "margin": 50.0,
+                                      "sigma": [[300.0, 0.01], [700.0, 0.09]]}, ValueError)
+    model = _model(chamber, photons=2_000)
+    with caplog.at_level("WARNING", logger="lpy_light"):
+        model.run(model.organs_from_meshes({1: disc_mesh(30, z=320)}, module="Leaf"))
+        assert not [r for r in caplog.records if "survey" in r.getMessage()]
+        for _ in range(2):
+            model.run(model.organs_from_meshes({1: disc_mesh(30, z=320), 2: disc_mesh(30, z=700)}, module="Leaf"))
+    lines = [r.getMessage() for r in caplog.records if "survey constrains" in r.getMessage()]
+    assert len(lines) == 1 and "9.0 %" in lines[0], lines
+
+
 def test_an_organ_no_sample_reached_is_undefined_not_zero_plus_minus_zero(black_room, caplog, tmp_path):
     """A leaf in a closed box that no photon enters has no estimate: not PAR 0 ± 0 (a σ of 0 claims a certainty
     the run does not have) but None for the rules, empty cells in organs.csv, and a warning counted per organ.

@@ -1,4 +1,5 @@
-"""What a scene file changes in the chamber its geometry describes: lamps, materials, the lamps' flux.
+"""What a scene file changes in the chamber its geometry describes: lamps, materials, the lamps' flux, and where a
+calibration's survey constrains the light.
 
 A fitted chamber (``lpy-light calibrate``, :mod:`lpy_light.calibration.calibrate`) is the original scene plus these
 tables; anyone may write them by hand too::
@@ -15,6 +16,14 @@ tables; anyone may write them by hand too::
     specular_transmission = 0.1      # the part of its transmittance that goes straight through (0..1)
 
     lamp_flux = [812.0, 150.3, ...]  # µmol s-1 the lamps emit in each band: ppfd from this, not the spectrum
+
+    [surveyed]                       # where the fit's survey constrains the light (calibrate writes it)
+    lower = [110.0, 930.0, 1000.0]   # its sites' box, scene units
+    upper = [1210.0, 1830.0, 1400.0]
+    margin = 100.0                   # how far beyond the box it still does (the sites' spacing)
+    sigma = [[1000.0, 0.014], ...]   # the fitted light's relative σ over the chamber at each height
+
+A plant that reaches beyond ``[surveyed]`` is warned about, once (:func:`outside_survey`).
 
 ``output`` and ``lamp_flux`` are per band (a single number: the same in every band).  With ``lamp_flux``
 the photon counts become µmol m⁻² s⁻¹ directly (:func:`lpy_light.chamber.units.from_lamp_flux`), with no
@@ -137,3 +146,43 @@ def lamp_flux(value, n_bands: int, err) -> np.ndarray:
     if not (flux > 0).all():
         raise err("'lamp_flux' must be > 0 in every band, got %r" % (value,), "lamp_flux")
     return flux
+
+
+def _point(v) -> bool:
+    return isinstance(v, list) and len(v) == 3 and all(isinstance(x, (int, float)) and not isinstance(x, bool)
+                                                       for x in v)
+
+
+def read_surveyed(table, err) -> dict:
+    """A fitted scene's ``[surveyed]`` table (written by ``calibrate``): ``lower``, ``upper`` [x, y, z] the box of
+    the survey's sites, ``margin`` how far beyond it the survey still constrains the light (scene units), and
+    optionally ``sigma`` [[z, relative σ], ...] the fitted light's σ over the chamber at those heights."""
+    if not isinstance(table, dict) or not _point(table.get("lower")) or not _point(table.get("upper")):
+        raise err("[surveyed] needs lower = [x, y, z] and upper = [x, y, z] (scene units)", ("surveyed",))
+    margin = table.get("margin", 0.0)
+    if not isinstance(margin, (int, float)) or margin < 0:
+        raise err("[surveyed] margin must be a number >= 0 (scene units)", ("surveyed", "margin"))
+    sigma = table.get("sigma", [])
+    if not (isinstance(sigma, list) and all(isinstance(p, list) and len(p) == 2 for p in sigma)):
+        raise err("[surveyed] sigma must be [[z, relative sigma], ...]", ("surveyed", "sigma"))
+    return {"lower": np.array(table["lower"], float), "upper": np.array(table["upper"], float),
+            "margin": float(margin), "sigma": [(float(z), float(v)) for z, v in sigma]}
+
+
+def outside_survey(surveyed: dict | None, lower, upper, unit: str = "") -> str | None:
+    """A warning when the box ``lower``..``upper`` (a plant's, scene units) reaches beyond what the calibration's
+    survey constrains (its sites' box and margin), or None."""
+    if not surveyed:
+        return None
+    lo, hi = surveyed["lower"] - surveyed["margin"], surveyed["upper"] + surveyed["margin"]
+    lower, upper = np.asarray(lower, float), np.asarray(upper, float)
+    if (lower >= lo).all() and (upper <= hi).all():
+        return None
+    top = float(upper[2])
+    sigma = [v for z, v in surveyed["sigma"] if z <= top + surveyed["margin"]]
+    worst = (" the fitted light's σ is up to %.1f %% at that height (the calibration's report.md)" % (100 * max(sigma))
+             if sigma else "")
+    fmt = lambda a: "(%s)" % ", ".join("%.4g" % x for x in a)    # noqa: E731
+    return ("the plant %s..%s %s reaches beyond the region the calibration's survey constrains, %s..%s with a "
+            "margin of %.4g:%s" % (fmt(lower), fmt(upper), unit, fmt(surveyed["lower"]), fmt(surveyed["upper"]),
+                                   surveyed["margin"], worst or " its light there is as described, not as measured"))

@@ -403,8 +403,7 @@ def chamber_from_spec(spec: dict, base: Path, name: str = "<scene>", text: str =
     if spec.get("lamp_flux") is not None:
         chamber.lamp_flux = overrides.lamp_flux(spec["lamp_flux"], chamber.n_bands, err)
     if spec.get("surveyed") is not None:
-        from ..calibration.survey import read_surveyed
-        chamber.surveyed = read_surveyed(spec["surveyed"], err)
+        chamber.surveyed = overrides.read_surveyed(spec["surveyed"], err)
     if pos is not None:
         chamber.plant_position = [float(x) for x in pos]
     cal = spec.get("calibration")

@@ -361,6 +361,7 @@ class LightModel:
             self.step += 1
             return StepResult(self.step - 1, {}, 0, time.perf_counter() - t0, 0, 0, 0)
         outside = self._outside(organs)
+        self._beyond_survey(organs)
         targets = None if self.targets is None else [o.module in self.targets for o in organs]
         if self.keeper is not None:
             targets = None               # the gather serves the organs it aims at only: every organ is one
@@ -490,6 +491,19 @@ class LightModel:
                         _xyz(to_plant(tri.min(axis=0))), _xyz(to_plant(tri.max(axis=0))), _xyz(to_plant(lo)),
                         _xyz(to_plant(hi)), _xyz(self.position))
         return out
+
+    def _beyond_survey(self, organs) -> None:
+        """Warn (once) when the plant reaches beyond the region a fitted chamber's survey constrains
+        (``[surveyed]``, written by ``lpy-light calibrate``): its light there is the fit's extrapolation."""
+        surveyed = getattr(self.chamber, "surveyed", None)
+        if not surveyed or not organs:
+            return
+        from ..chamber.overrides import outside_survey
+        lo = np.min([o.triangles.min(axis=(0, 1)) for o in organs], axis=0)
+        hi = np.max([o.triangles.max(axis=(0, 1)) for o in organs], axis=0)
+        text = outside_survey(surveyed, lo, hi, self.chamber.unit)
+        if text:
+            log.warning("calibrated chamber: %s", text)
 
     def intercept(self, organs, lscene=None):
         """Light the plant of this step.
