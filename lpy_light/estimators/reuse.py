@@ -2,8 +2,8 @@
 
 A growth step with the full kernel (``nee``) traces the lamps, the lamp box, the diffusing ceiling and the walls
 again at every step, to learn how much light reaches the plant; ~80 % of its shadow rays and ~87 % of the organs'
-light come from vertices on the chamber (``docs/physics.md``, "The chamber's light stored once").  Here that is traced once into a
-:class:`ChamberStore` (:func:`build_store`), and each step (:func:`gather_step`) only
+light come from vertices on the chamber (``docs/physics.md``, "The chamber's light stored once").  Here that is
+traced once into a :class:`ChamberStore` (:func:`build_store`), and each step (:func:`gather_step`) only
 
 * gathers the store's light at every organ target, ``samples`` draws per target through the current plant (a bud
   gets as many as a leaf): :func:`lpy_light.kernel.gather.gather_batch`;
