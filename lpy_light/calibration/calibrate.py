@@ -45,8 +45,9 @@ MAX_LAMPS = 16
 #: survey's lowest site to :data:`HEADROOM` under the lowest lamp
 PROBE_GRID, PROBE_LEVELS, HEADROOM = 4, 4, 0.3
 #: the light above the survey is "constrained" where its σ is at most this many times its σ at the survey's
-#: own sites
-CONSTRAINED = 2.0
+#: own sites; a height is warned about where its median σ is beyond that and beyond WARN_SIGMA (about a
+#: reading's own scatter: below it the survey could not have told more)
+CONSTRAINED, WARN_SIGMA = 2.0, 0.03
 
 
 @dataclass
@@ -289,7 +290,7 @@ def _probe_rows(lay, sol, Xp, Jp, level, heights, sigma_survey, unit) -> tuple:
         rows.append({"z": float(h), "unit": unit, "probes": int(at.sum()), "sigma_median": float(np.median(s)),
                      "sigma_max": float(s.max()),
                      "constrained_share": float(np.mean(s <= CONSTRAINED * sigma_survey))})
-        if np.median(s) > CONSTRAINED * sigma_survey:
+        if np.median(s) > max(CONSTRAINED * sigma_survey, WARN_SIGMA):
             warnings.append("at z = %g %s the fitted light's σ is %.1f %% (median over the chamber's plan), %.1f times "
                             "its σ at the survey's sites: the survey does not constrain the light there"
                             % (h, unit, 100 * np.median(s), np.median(s) / sigma_survey))
