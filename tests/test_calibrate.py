@@ -169,6 +169,7 @@ def test_the_fitted_scene_runs_and_gives_the_survey_back(synthetic, tmp_path):
 @pytest.mark.parametrize("change, what", [
     (lambda rows: rows.__setitem__(5, rows[5].rsplit(",", 1)[0] + ","), "has no reading"),
     (lambda rows: rows.__setitem__(5, rows[5].rsplit(",", 1)[0] + ",-1.5"), ">= 0"),
+    (lambda rows: rows.__setitem__(5, rows[5].rsplit(",", 1)[0] + ",0"), "a reading of 0"),
     (lambda rows: rows.__setitem__(5, rows[5].rsplit(",", 1)[0] + ",abc"), "expected a number"),
     (lambda rows: rows.__setitem__(5, "5000" + rows[5][rows[5].index(","):]), "outside the chamber"),
 ])

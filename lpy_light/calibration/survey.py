@@ -11,7 +11,7 @@ Optionally a ``row`` column groups the sites into the rows the cross-validation 
 without it a row is the sites that share an x or a y coordinate, whichever makes more rows.
 
 Bad input is refused with the file and line (:class:`~lpy_light.errors.InputError`): a band column the
-scene lacks, a site outside the chamber, a missing, negative or non-numeric reading.
+scene lacks, a site outside the chamber, a missing, zero, negative or non-numeric reading.
 """
 from __future__ import annotations
 
@@ -109,6 +109,9 @@ def read_survey(path, chamber) -> Survey:
             if not np.isfinite(v) or v < 0:
                 raise InputError("expected a finite reading >= 0 µmol m-2 s-1 for band %s, got %r"
                                  % (labels[b], cell), path, number)
+            if v == 0:
+                raise InputError("a reading of 0 for band %s: the fit weighs relative residuals, so a site that "
+                                 "read nothing cannot be fitted (leave it out)" % labels[b], path, number)
             values[s, b] = v
         c = sensors.center[s]
         if np.any(c < lo) or np.any(c > hi):
