@@ -525,6 +525,10 @@ def _grow_parser(sub):
                         "region; reuse: the chamber's light traced once into a store and gathered at every organ "
                         "each step (default: the model's, else nee)")
     g.add_argument("--threads", type=int, default=None, help="threads (default: all cores)")
+    g.add_argument("--verify", type=_count, default=None, metavar="N",
+                   help="also light the first N lit steps by an independent nee run at the model's photons per step, "
+                        "and compare every read organ's PAR and R:FR with the estimator's: verify.csv (per organ "
+                        "and step), 'verify' in summary.json (bias ± σ for leaves and buds), a line on stderr")
     g.add_argument("--out", required=True, help="output folder")
     g.add_argument("--plot-every", type=_count, default=None, metavar="N",
                    help="also save plant_<step>.png every N steps (plant.png, the last step, is always saved)")

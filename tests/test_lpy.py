@@ -331,9 +331,11 @@ def test_grow_with_the_chamber_stored_once_says_which_store_lit_each_step(tmp_pa
     """``grow --estimator reuse`` (a store of the chamber's light) and ``--estimator field`` (the light entering the
     plant's region) on the report's rose lit from outside (its Sweep leaves, internodes, flowers): every leaf read
     gets its light with a σ below its value, ``summary.json`` names the estimator, its settings and each step's
-    store (and why it was built), and a store serves several steps."""
+    store (and why it was built), and a store serves several steps.  Each field is checked against ``nee`` as it
+    is traced (``field_checks``); where it fails (this rose's buds cut into their stems: their R:FR), its steps are
+    lit by ``nee`` at ``--photons`` and say so (``lit_by``)."""
     p = _grow(SEED_ROSE, *SEED_ORGANS, "--at", "1280,860,980", "--targets", "Leaf,Bud", "--steps", 12,
-              "--estimator", estimator, "--out", tmp_path)
+              "--estimator", estimator, "--photons", 100_000, "--out", tmp_path)
     assert p.returncode == 0, p.stderr
     rows = _rows(tmp_path / "organs.csv")
     leaves = [r for r in rows if r["module"] == "Leaf" and r["step"] == "11"]
@@ -343,6 +345,29 @@ def test_grow_with_the_chamber_stored_once_says_which_store_lit_each_step(tmp_pa
     stores = [s["store"][name] for s in summary["steps"] if "store" in s]
     assert len(stores) == 12 and 1 <= summary["stores_built"] == len(set(stores)) < 12
     assert summary["steps"][0]["store"]["why"] == "first step"
+    if estimator == "field":
+        checks = summary["field_checks"]
+        assert len(checks) == summary["stores_built"] and "passed" in checks[0]
+        assert summary["steps"][0]["field_check"] == checks[0]
+        lit = [s["lit_by"].split()[0] for s in summary["steps"]]
+        assert lit[0] == ("field" if checks[0]["passed"] else "nee") and set(lit) <= {"field", "nee"}
+
+
+@pytest.mark.lpy
+@lpy
+def test_grow_verify_compares_the_first_steps_with_nee(tmp_path):
+    """``grow --verify 2`` on rose-simple4-light.lpy: its first two lit steps also lit by an independent ``nee`` run,
+    every leaf and bud compared in verify.csv, the totals in summary.json's ``verify`` and on one line of stderr."""
+    p = _grow(SEED_ROSE_LIT, "--steps", 3, "--photons", 100_000, "--verify", 2, "--out", tmp_path)
+    assert p.returncode == 0, p.stderr
+    rows = list(csv.DictReader(open(tmp_path / "verify.csv")))
+    assert {r["step"] for r in rows} == {"0", "1"} and {r["kind"] for r in rows} == {"leaves", "buds"}
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    v = summary["verify"]
+    assert v["steps"] == 2 and v["nee_photons"] == 100_000 and v["estimator"] == "nee"
+    assert v["leaves"]["par"]["sigma"] > 0 and v["buds"]["organs"] > 0 and v["all"]["within"] > 0.8
+    assert "verify" in summary["steps"][1] and "verify" not in summary["steps"][2]
+    assert sum(line.startswith("lpy-light: verify: nee against nee") for line in p.stderr.splitlines()) == 1
 
 
 @pytest.mark.lpy

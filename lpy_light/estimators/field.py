@@ -105,6 +105,11 @@ class FieldSettings:
     cosine_share : float
         The share of each guided side's first rays drawn cosine-weighted (the rest from its guide), in (0, 1]:
         what keeps the directions the guide misjudges (the plant in the way, the organ's extent) sampled.
+    check_photons : int
+        Photons of the ``nee`` run that checks each field as it is traced (:mod:`lpy_light.plant.verify`: the
+        field's step of the plant it was traced with against ``nee``'s, leaves and buds apart; a field that fails
+        is not used, its steps are lit by ``nee``); 0: no check.  The default, 10⁵, costs about a tenth of a
+        field and the steps lit from it on a rose (``docs/estimators.md``).
     """
 
     store_photons: int = 4_000_000
@@ -123,11 +128,12 @@ class FieldSettings:
     guide_z: int = 16
     guide_phi: int = 32
     cosine_share: float = 0.25
+    check_photons: int = 100_000
 
     def __post_init__(self):
         for name, lo in (("store_photons", 1), ("batches", 4), ("cells", 1), ("rings", 1), ("sectors", 1),
                          ("rays", 1), ("shading_rays", 1), ("piece_rays", 1), ("pieces", 1), ("bounces", 0),
-                         ("renew", 0), ("guide_z", 0), ("guide_phi", 1)):
+                         ("renew", 0), ("guide_z", 0), ("guide_phi", 1), ("check_photons", 0)):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, float, np.integer)) or value != int(value) \
                     or value < lo:
@@ -356,6 +362,7 @@ class LightField:
     pieces: tuple
     crossings: int = 0
     seconds: float = 0.0
+    cpu_seconds: float = 0.0
 
     @property
     def batches(self) -> int:
@@ -384,7 +391,7 @@ class LightField:
         return {"field": self.name, "photons": self.photons, "batches": self.batches, "seed": self.seed,
                 "box": [float(x) for x in self.box], "cells": int((self.grid[:, 0] * self.grid[:, 1]).sum()),
                 "directions": self.bins_per_cell, "crossings": self.crossings, "pieces": int(len(self.pieces[2])),
-                "seconds": round(self.seconds, 3)}
+                "seconds": round(self.seconds, 3), "cpu_seconds": round(self.cpu_seconds, 3)}
 
 
 def field_key(kscene, box, settings: FieldSettings, seed, flux=None) -> str:
@@ -401,7 +408,7 @@ def build_field(kscene, settings: FieldSettings, seed: int = 1, threads: int | N
     it) and bin every segment that enters the region ``box`` (default: :func:`plant_region` of its organs).  Chunk
     c belongs to batch c mod S; the chunks' crossings are added in order: the same field on any number of
     ``threads``."""
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     mpu = kscene.chamber.metres_per_unit
     if box is None:
         box = plant_region(kscene.organs, mpu, settings, lamp_bounds(kscene.chamber.emitters),
@@ -445,7 +452,8 @@ def build_field(kscene, settings: FieldSettings, seed: int = 1, threads: int | N
             crossings += len(bins)
     pieces = chamber_pieces(kscene, box, settings.pieces)
     return LightField(field_key(kscene, box, settings, seed, flux), int(photons), int(seed), box, grid, face0,
-                      settings.rings, settings.sectors, field, pieces, crossings, time.perf_counter() - t0)
+                      settings.rings, settings.sectors, field, pieces, crossings, time.perf_counter() - t0,
+                      time.process_time() - c0)
 
 
 # -- a step ---------------------------------------------------------------------------------------------------
@@ -673,12 +681,14 @@ def field_step(kscene, field: LightField, settings: FieldSettings, seed: int = 1
     # spreads crossed) is not in the step's estimate, which reads every batch with every ray
     N = field.photons
     prod = np.einsum("rb,rc->rbc", tally, tally) / N
+    parts = []
     for Es in (E_g, E_f):
         T = np.zeros((S, n_rows, B))
         for g in range(S):
             T[g, rows_inc], T[g, rows_ab] = organ_rows(Es[g])
         dev = T - T.mean(axis=0)
         prod += np.einsum("srb,src->rbc", dev, dev) / (N * S)
+        parts.append(T[:, rows_inc])
     counters = np.zeros(N_COUNTERS, np.int64)
     result = Result(N, tally, prod, counters, time.perf_counter() - t0, workers, seed, kscene.n_sensors,
                     kscene.n_receivers, estimator="field", materials=[m.name for m in kscene.materials],
@@ -686,6 +696,9 @@ def field_step(kscene, field: LightField, settings: FieldSettings, seed: int = 1
     result.extra["field_step"] = {"rays": int(ray_start[-1]), "passes": int(passes), "links": int(len(src)), "rays_s": round(t_rays, 4),
                                   "read_s": round(t_read, 4), "solve_s": round(t_solve, 4),
                                   "elements": int(el["n_elements"]), "pieces": int(len(field.pieces[2]))}
+    # the organs' incident tallies of each σ group of rays and of each batch of the field, (S, organs, B) each: the
+    # σ of a sum over organs, whose field part is common to all of them (lpy_light.plant.verify)
+    result.extra["parts"] = parts
     region.close()
     return result
 
@@ -693,7 +706,9 @@ def field_step(kscene, field: LightField, settings: FieldSettings, seed: int = 1
 class FieldKeeper:
     """The field a growing plant is lit from: kept while it is valid, traced again when it is not (none yet; the
     chamber, its materials or lamps changed; the plant left its region; every ``settings.renew`` steps).
-    ``built`` counts the fields traced; ``why`` says why the last one was."""
+    ``built`` counts the fields traced; ``why`` says why the last one was; ``verdict`` is the current field's
+    self-check (None: not checked), ``checks`` every field's, ``pool`` what the check pools from the fields before
+    (:mod:`lpy_light.plant.verify`)."""
 
     def __init__(self, settings: FieldSettings, seed: int = 1):
         self.settings, self.seed = settings, int(seed)
@@ -701,6 +716,14 @@ class FieldKeeper:
         self.steps = 0
         self.built = 0
         self.why = ""
+        self.verdict: dict | None = None
+        self.checks: list = []
+        self.pool: list = []        # the last few self-checks' comparisons, pooled (lpy_light.plant.verify.POOL)
+
+    @property
+    def trusted(self) -> bool:
+        """Whether the current field may light a step: not checked, or passed its check."""
+        return self.verdict is None or bool(self.verdict.get("passed"))
 
     def field_for(self, kscene, organs, flux=None, threads=None) -> LightField:
         f = self.field
@@ -722,10 +745,22 @@ class FieldKeeper:
         self.steps = 1
         return self.field
 
-    def step(self, kscene, organs, seed: int, flux=None, threads=None, scale=None, read=None):
+    def step(self, kscene, organs, seed: int, flux=None, threads=None, scale=None, read=None, check=None):
         """One step's :class:`~lpy_light.estimators.result.Result` for ``organs`` (in ``kscene`` already); ``scale``
-        (organs,) multiplies each organ's rays."""
+        (organs,) multiplies each organ's rays.  ``check(field, result)``, called on the step of each field traced
+        here, returns its verdict (a dict whose ``passed`` says whether it may be used:
+        :func:`lpy_light.plant.verify.field_self_check`).  None where the current field failed its check: the
+        caller lights the step otherwise (``verdict`` says why)."""
+        built = self.built
         field = self.field_for(kscene, organs, flux, threads)
+        if self.built != built:
+            self.verdict = None
+        elif not self.trusted:
+            return None
         result = field_step(kscene, field, self.settings, seed=seed, threads=threads, read=read, scale=scale)
         result.extra["store"] = dict(field.describe(), why=self.why, steps_from_it=self.steps)
-        return result
+        if self.built != built and check is not None and self.settings.check_photons > 0:
+            self.verdict = check(field, result)
+            self.checks.append(self.verdict)
+            result.extra["field_check"] = self.verdict
+        return result if self.trusted else None

@@ -13,7 +13,7 @@ import math
 import signal
 import sys
 import threading
-from contextlib import contextmanager
+from contextlib import contextmanager, nullcontext
 from pathlib import Path
 
 from ..errors import InputError
@@ -101,6 +101,7 @@ def cmd_grow(args) -> int:
     from . import light as lightmod
     from .lpy import require_lpy
     from .precision import parse_goal
+    from .verify import VERIFY_COLUMNS, summary_line
     from ..run.results import CsvStream, atomic_write, json_text
 
     path = Path(args.model)
@@ -140,13 +141,18 @@ def cmd_grow(args) -> int:
                 setattr(model, name, lightmod._photons(value) if name == "photons" else value)
     if args.estimator is not None and args.estimator != model.estimator:
         model.use_estimator(args.estimator)
+    if getattr(args, "verify", None):
+        model.verify = args.verify
     out = Path(args.out)
     summaries, pictures = [], []
     out.mkdir(parents=True, exist_ok=True)
     organs_csv = CsvStream(out / "organs.csv", lightmod.ORGAN_COLUMNS)      # step by step: memory stays flat
+    verify_csv = CsvStream(out / "verify.csv", VERIFY_COLUMNS) if model.verify else nullcontext()
 
     def on_step(step, organs):
         organs_csv.write(lightmod.organ_rows(step))
+        if step.comparison:
+            verify_csv.write(step.comparison)
         roles = [light.role for light in step.organs.values()]
         summaries.append({"step": step.step, "organs": len(step.organs), "targets": roles.count("target"),
                           "shading_only": roles.count("shading only"), "not_reached": roles.count(lightmod.NOT_REACHED),
@@ -163,12 +169,21 @@ def cmd_grow(args) -> int:
             print("  step %d: %d organs, %d triangles, %d photons%s, %.2f s (%s%d shapes re-tessellated, %d reused)"
                   % (step.step, len(step.organs), step.triangles, step.photons, reach, step.seconds, compiled,
                      step.tessellated, step.reused), file=sys.stderr, flush=True)
+            if "field_check" in step.extra:
+                check = step.extra["field_check"]
+                print("    field %s checked against nee at %d photons (%.1f CPU s, %.2f of the field's): %s%s"
+                      % (check["field"], check["photons"], check["cpu_s"], check["share_of_field"] or 0,
+                         summary_line(check), "" if check["passed"] else " -- FAILED: lit by nee until renewed"),
+                      file=sys.stderr, flush=True)
+            if "verify" in step.extra:
+                print("    verify against nee at %d photons: %s" % (model.photons, summary_line(step.extra["verify"])),
+                      file=sys.stderr, flush=True)
 
     model.on_step = on_step
     partial = False
     lstring = lsys.axiom
     derived = 0
-    with organs_csv, model.warnings_once() as seen, _ctrl_c_noted() as ctrl_c:
+    with organs_csv, verify_csv, model.warnings_once() as seen, _ctrl_c_noted() as ctrl_c:
         try:
             for i in range(steps):
                 lstring = lsys.derive(lstring, i, 1)
@@ -200,6 +215,10 @@ def cmd_grow(args) -> int:
         summary[model.estimator] = dataclasses.asdict(model.keeper.settings)
         summary["stores_built"] = model.keeper.built
         summary["store"] = None if kept is None else kept.describe()
+        if hasattr(model.keeper, "checks"):
+            summary["field_checks"] = model.keeper.checks      # each field's self-check against nee
+    if model.verify:
+        summary["verify"] = model.verification.summary(model)
     if model.last_step is not None and model.last_organs:
         pictures.append(_plant_picture(out / "plant.png", model, path, model.last_step, model.last_organs))
     summary["pictures"] = [p for p in pictures if p]
@@ -207,7 +226,12 @@ def cmd_grow(args) -> int:
     if not args.quiet:
         for line in seen.repeated_lines():
             print("lpy-light: " + line, file=sys.stderr)
-        files = ", ".join(["summary.json"] + [Path(p).name for p in summary["pictures"]])
+        if model.verify:
+            v = summary["verify"]
+            print("lpy-light: verify: %s against nee at %d photons, %d step(s): %s -> verify.csv"
+                  % (model.verification.label(model), model.photons, v["steps"], summary_line(v)), file=sys.stderr)
+        files = ", ".join(["summary.json"] + (["verify.csv"] if model.verify else [])
+                          + [Path(p).name for p in summary["pictures"]])
         if partial:
             print("lpy-light: interrupted after %d of %d derivation step(s), %d lit; partial results (\"partial\": "
                   "true in summary.json) in %s: organs.csv, %s" % (derived, steps, len(summaries), out, files),

@@ -45,6 +45,7 @@ from ..messages import OncePerKind
 from .organ_light import (NOT_REACHED, ORGAN_COLUMNS, OrganLight, StepResult, for_rules, not_reached, organ_lights,
                           organ_rows, shading_only)
 from .organs import TessellationCache, mesh_key, organ_from_mesh, plant_material
+from . import verify as verifying
 from ..process_state import preserved_locale
 from ..estimators.field import FieldKeeper, field_settings
 from ..estimators.reuse import StoreKeeper, reuse_settings
@@ -201,7 +202,13 @@ class LightModel:
         Unit: each setting's own, as its class states (``store_photons``: photons; ``renew``: steps).
         With ``estimator="field"``: its settings (:class:`lpy_light.estimators.field.FieldSettings`: ``store_photons``,
         ``batches``, ``cells``, ``rings``, ``sectors``, ``rays``, ``shading_rays``, ``piece_rays``, ``pieces``,
-        ``bounces``, ``growth``, ``margin``, ``renew``).
+        ``bounces``, ``growth``, ``margin``, ``renew``, ``check_photons``: the ``nee`` run that checks each field
+        as it is traced, :mod:`lpy_light.plant.verify`; a field that fails is not used, its steps are lit by
+        ``nee``).
+    verify : int
+        Unit: steps, a count.  The first ``verify`` lit steps are also lit by an independent ``nee`` run at
+        ``photons``, every read organ compared (``StepResult.comparison``, ``extra["verify"]``; ``lpy-light grow
+        --verify``: ``verify.csv``), :mod:`lpy_light.plant.verify`.  Default 0: none.
     """
 
     def __init__(self, scene="angers-12bands", organs=None, photons: int = 300_000, seed: int = 1,
@@ -210,7 +217,7 @@ class LightModel:
                  progress=None, nee_picks: int = 2, targets=None, mirror_events: float | None = None,
                  precision=None, lamp_scale=1.0, colour_top: float | None = None,
                  one_sided_organs: bool = False, cone_rays: float | None = None, local_rays: float | None = None,
-                 reuse=None, field=None):
+                 reuse=None, field=None, verify: int = 0):
         self._pending = None          # a step's worker that Stop in the L-Py IDE left running (lpy_light.plant.ide)
         live = ide.live(doing="reading the chamber")        # None outside a GUI: plain calls
         self.chamber = scene if hasattr(scene, "triangles") else _call(live, load_scene, resolve_scene(str(scene)))
@@ -229,6 +236,7 @@ class LightModel:
                             estimator="nee" if estimator_named(estimator).stored else estimator,
                             one_sided_organs=one_sided_organs)
         self.keeper = _keeper(self.estimator, reuse, field, seed)
+        self.verify, self.verification = verifying.verify_count(verify), verifying.Verification()
         self.kscene.configure(**_plant_settings(nee_picks=nee_picks, cone_rays=cone_rays, local_rays=local_rays))
         _plant_settings(mirror_events=mirror_events)         # checked here, used at each step (_mirror_events)
         self.mirror_events = None if mirror_events is None else float(mirror_events)
@@ -380,9 +388,11 @@ class LightModel:
                 return step_sigma_over_goal(self.kscene, partial, np.flatnonzero(read), self.chamber, self.goal,
                                             self.flux)
         self.kscene.size_pilots(n)
-        if self.keeper is not None:
-            result = self._reuse_step(organs, precision_of, read)
-        else:
+        checks = len(getattr(self.keeper, "checks", ()))
+        result = self._reuse_step(organs, precision_of, read) if self.keeper is not None else None
+        if result is None:          # nee; or a field that failed its self-check (lpy_light.plant.verify)
+            if self.keeper is not None:
+                self.kscene.configure(images=self._mirror_events())
             result = simulate.run(self.kscene, n, seed=self.seed + self.step, threads=self.threads,
                                   precision=None if precision_of is None else 1.0, precision_of=precision_of,
                                   **_live_arguments(live, self.progress))
@@ -403,6 +413,7 @@ class LightModel:
         for key in ("store", "sigma_over_goal"):
             if key in result.extra:
                 step.extra[key] = result.extra[key]
+        verifying.after_step(self, step, result, organs, read, checks)     # field_check, lit_by, verify
         compiled = getattr(self.kscene, "compile_seconds", 0.0) - compiled
         if compiled > 0:              # the kernel compiled for these organs (first run only), within the step's time
             step.extra["compile_seconds"] = compiled
@@ -426,7 +437,11 @@ class LightModel:
         where the goal is not met.  The store's own error is not lowered by draws: a goal below it is reported as
         not met."""
         seed = self.seed + self.step
-        result = self.keeper.step(self.kscene, organs, seed, self.flux, self.threads, read=read)
+        check = verifying.field_self_check(self, organs, read) if self.estimator == "field" else None
+        result = self.keeper.step(self.kscene, organs, seed, self.flux, self.threads, read=read,
+                                  **({} if check is None else {"check": check}))
+        if result is None:          # the field failed its self-check: the caller lights the step by nee
+            return None
         if precision_of is not None:
             rows = np.flatnonzero(read)
             r = self.kscene.n_sensors + self.kscene.n_chamber_receivers + rows

@@ -107,8 +107,12 @@ class StepResult:
         Organs taken from the tessellation cache (a count).
     extra : dict
         What else the step reports: ``precision`` and ``precision_reached``, ``outside_chamber`` (keys of organs
-        outside the chamber), ``store`` (the stored estimators' store or field), ``sigma_over_goal``,
-        ``compile_seconds`` and ``convert_seconds`` (s).
+        outside the chamber), ``store`` (the stored estimators' store or field), ``field_check`` (the self-check
+        of a field traced at this step) and ``lit_by`` (``field``, or ``nee`` where the field failed it),
+        ``verify`` (a verified step's comparison with ``nee``, kind by kind), ``sigma_over_goal``,
+        ``compile_seconds``, ``convert_seconds`` and ``verify_seconds`` (s).
+    comparison : list
+        A verified step's rows of ``verify.csv`` (:data:`lpy_light.plant.verify.VERIFY_COLUMNS`), else empty.
     """
 
     step: int
@@ -119,6 +123,7 @@ class StepResult:
     tessellated: int             # organs converted this step (cache misses)
     reused: int                  # organs taken from the cache
     extra: dict = field(default_factory=dict)
+    comparison: list = field(default_factory=list)     # rows of verify.csv (LightModel(verify=N))
 
 
 def organ_lights(kscene, result, organs, flux, flux_std, chamber, read=None) -> dict:
