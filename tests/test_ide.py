@@ -128,6 +128,49 @@ def test_outside_a_gui_nothing_changes(monkeypatch):
     assert ide.live() is None                                   # no application
 
 
+def test_the_first_import_runs_no_full_collection():
+    """While the IDE's first import runs (numba's ~10⁵ objects) the cyclic collector is off, and what it made is
+    frozen: no full collection of the IDE's heap holds the GUI afterwards.  The collector is on again after, as it was
+    before."""
+    import gc
+    assert gc.isenabled()
+    frozen = gc.get_freeze_count()
+    seen = []
+    with ide.no_full_collection():
+        seen.append(gc.isenabled())
+        junk = [[i] for i in range(50_000)]
+    assert seen == [False] and gc.isenabled()
+    assert gc.get_freeze_count() >= frozen + 50_000
+    del junk
+    gc.unfreeze()                         # give this test process its collector back as it was
+
+
+@lpy
+def test_extern_sets_its_callers_names_with_the_quick_frame(monkeypatch):
+    """L-Py's ``extern()`` with :func:`ide.quick_extern` sets the defaults in its caller's namespace, as L-Py's own
+    ``get_caller_frame`` does, at any depth of the stack; ``extern('NAME')`` still checks the name."""
+    import importlib
+    dp = importlib.import_module("openalea.lpy.defaultparameters")     # (the package names a function so)
+    monkeypatch.setattr(dp, "get_caller_frame", dp.get_caller_frame)       # restored after the test
+    ns = {"extern": dp.extern}
+    code = "extern(a=1, b=2)\nextern(a=5)\nextern('b')\n"
+    exec(code, ns)
+    ide.quick_extern()
+    assert dp.get_caller_frame is ide._caller_frame
+    fast = {"extern": dp.extern, "a": 7}
+    exec(code, fast)
+    assert (ns["a"], ns["b"], ns["__externs__"]) == (1, 2, {"a", "b"})
+    assert (fast["a"], fast["b"], fast["__externs__"]) == (7, 2, {"a", "b"})
+
+    def nested():
+        local_ns = {"extern": dp.extern}
+        exec("extern(c=3)", local_ns)
+        return local_ns["c"]
+    assert nested() == 3
+    with pytest.raises(NameError):
+        exec("extern('missing')", {"extern": dp.extern})
+
+
 def test_a_step_turns_the_gui_loop_and_gives_the_same_numbers(gui, black_room, monkeypatch):  # noqa: F811
     """In the GUI thread, ``LightModel(...)`` and a step run in a worker while the event loop turns every few
     hundredths of a second; the organs' light is the plain call's, bit for bit."""

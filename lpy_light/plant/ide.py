@@ -22,6 +22,8 @@ environment does the same inside the IDE.  Qt is never imported here: only a bin
 """
 from __future__ import annotations
 
+import contextlib
+import gc
 import importlib
 import os
 import sys
@@ -127,8 +129,40 @@ def imported(name: str):
     alive = live(doing="loading lpy-light") if name not in sys.modules else None
     if alive is None:
         return importlib.import_module(name)
-    with alive:
+    quick_extern()
+    with alive, no_full_collection():
         return alive.call(importlib.import_module, name)
+
+
+def _caller_frame():
+    """L-Py's ``get_caller_frame``: the frame that called the function calling it (``extern``'s caller)."""
+    return sys._getframe(2)
+
+
+def quick_extern():
+    """L-Py's ``extern()`` (``openalea.lpy.defaultparameters``) finds its caller with ``inspect.getouterframes``, which
+    reads the source of every frame of the stack: ~27 ms a call in the IDE, so a model's few ``extern`` lines held the
+    window ~0.1-0.3 s.  Its ``get_caller_frame`` is given the same frame by ``sys._getframe(2)`` (µs).  In the IDE
+    only (:func:`imported`); anything else in L-Py is left as it is."""
+    module = sys.modules.get("openalea.lpy.defaultparameters")
+    if module is not None and getattr(module, "get_caller_frame", None) is not None:
+        module.get_caller_frame = _caller_frame
+
+
+@contextlib.contextmanager
+def no_full_collection():
+    """The interpreter's cyclic garbage collector off while the block runs, and the objects alive at its end moved
+    to the permanent generation (:func:`gc.freeze`).  numba's import makes ~10⁵ long-lived objects: enough to start a
+    full collection of the whole IDE's heap (0.1-0.6 s that holds every thread, the GUI's too).  Frozen, they are
+    never scanned again (nor freed: an import's modules live as long as the process anyway)."""
+    enabled = gc.isenabled()
+    gc.disable()
+    try:
+        yield
+    finally:
+        gc.freeze()
+        if enabled:
+            gc.enable()
 
 
 class Live:
