@@ -25,10 +25,9 @@ import numpy as np
 from numba import njit
 
 from .embree import GEOM_ID, INVALID_ID, PRIM_ID, RAYHIT
-from .emission import EMIT_CYLINDER, EMIT_LINE, EMIT_POINT, EMIT_TRIANGLE, on_cylinder, on_sphere, on_triangle
 from .ptr import load_u32
 from .raylog import RAY_FIELD
-from .rays import cast, set_ray, visible
+from .rays import cast, set_ray
 from .rng import seed_stream, uniform
 from .sampling import cosine_hemisphere, search_cdf
 
@@ -274,69 +273,7 @@ def stratified_directions(state, n, groups, share, lattice, cosine):
 
 
 @njit(nogil=True, cache=True)
-def lamp_sample(lamps, scratch, px, py, pz, nx, ny, nz, eps, u0, u1, u2):
-    """One sample of the lamps' direct light at the point p, for the unit normal n: ``(e, g, side)``, the emitter
-    element drawn (by its share of the power, ``u0``), the geometric factor g ≥ 0 of a point drawn on it (``u1``,
-    ``u2``) with its shadow ray through the whole scene (0 where blocked), and the side of n the lamp lies on (±1).
-    ``lamps.photons · lamps.weight[e, b] · g`` estimates the irradiance of that side of p (photon weight per scene
-    unit², for the field's photons): g = |cos θ_p| / (4π d²) from a line or point lamp (isotropic), cos θ_lamp ·
-    |cos θ_p| / (π d²) from a surface (a cosine law; 0 behind it): a photon's chance to cross a unit area at p
-    facing the lamp, as :func:`kernel.emission.emit` draws it.  The shadow ray goes from the lamp to p, as
-    the photon would: a one-sided surface (a diffuser seen from behind) stops it only where it stops photons."""
-    cdf = lamps.cdf
-    e = search_cdf(cdf, 0, cdf.shape[0] - 1, u0)
-    k = lamps.kind[e]
-    data = lamps.data
-    surface = False
-    lx = ly = lz = 0.0
-    if k == EMIT_LINE or k == EMIT_POINT:
-        f = u1 if k == EMIT_LINE else 0.0
-        x0 = data[e, 0, 0] + f * (data[e, 1, 0] - data[e, 0, 0])
-        x1 = data[e, 0, 1] + f * (data[e, 1, 1] - data[e, 0, 1])
-        x2 = data[e, 0, 2] + f * (data[e, 1, 2] - data[e, 0, 2])
-    else:
-        if k == EMIT_TRIANGLE:
-            x0, x1, x2, lx, ly, lz, _ = on_triangle(data, e, u1, u2)
-        elif k == EMIT_CYLINDER:
-            x0, x1, x2, lx, ly, lz, _ = on_cylinder(data, e, u1, u2)
-        else:
-            x0, x1, x2, lx, ly, lz, _ = on_sphere(data, e, u1, u2)
-        inv = 1.0 / math.sqrt(lx * lx + ly * ly + lz * lz)
-        lx, ly, lz = lx * inv, ly * inv, lz * inv
-        surface = True
-    vx, vy, vz = x0 - px, x1 - py, x2 - pz
-    d2 = vx * vx + vy * vy + vz * vz
-    if not d2 > 0.0:
-        return e, 0.0, 1.0
-    d = math.sqrt(d2)
-    ux, uy, uz = vx / d, vy / d, vz / d
-    c = ux * nx + uy * ny + uz * nz
-    side = 1.0 if c > 0.0 else -1.0
-    g = abs(c) / (4.0 * math.pi * d2)
-    if surface:
-        cos_l = -(ux * lx + uy * ly + uz * lz)
-        if not cos_l > 0.0:
-            return e, 0.0, side
-        g = cos_l * abs(c) / (math.pi * d2)
-    if g == 0.0:
-        return e, 0.0, side
-    # the shadow ray as the photon flies, from the lamp to p (one-sided surfaces, a diffuser's back, let light
-    # through one way only), off the lamp's surface and ending off p's, on the lamp's side
-    qx, qy, qz = px + side * eps * nx, py + side * eps * ny, pz + side * eps * nz
-    if surface:
-        el = lamps.geometry.offset_rel * 2.0 * max(abs(x0), abs(x1), abs(x2), 1e-30)
-        x0, x1, x2 = x0 + el * lx, x1 + el * ly, x2 + el * lz
-    wx, wy, wz = qx - x0, qy - x1, qz - x2
-    dq = math.sqrt(wx * wx + wy * wy + wz * wz)
-    if not dq > 0.0:
-        return e, 0.0, side
-    if not visible(lamps.geometry, scratch, x0, x1, x2, wx / dq, wy / dq, wz / dq, dq):
-        return e, 0.0, side
-    return e, g, side
-
-
-@njit(nogil=True, cache=True)
-def cast_rays(region, sides, bins, guides, first, last, seed, bounces, groups, scratch, ends, lamps):
+def cast_rays(region, sides, bins, guides, first, last, seed, bounces, groups, scratch, ends):
     """Rays from the element sides ``first .. last − 1`` of the ``region`` (:class:`~kernel.records.Region`):
     ``sides.rays[s]`` from side s (:class:`~kernel.records.RaySides`), written at ``ends.out[ray_start[s]:]``
     (:class:`~kernel.records.RayEnds`): ≥ 0, the triangle side (2 t + 0 front, + 1 back, t a region triangle)
@@ -363,8 +300,7 @@ def cast_rays(region, sides, bins, guides, first, last, seed, bounces, groups, s
     tri_start, tris, tri_cdf, side_rays, ray_start, reflect, transmit, guide_of = sides
     box, grid, face0, rings, sectors = bins
     guide, cosine_share, n_phi = guides
-    out, ray_tri, through, lamp = ends
-    direct_light = lamps.photons > 0.0
+    out, ray_tri, through = ends
     state = np.zeros(1, np.uint64)
     rh = scratch + RAYHIT
     n_b = reflect.shape[1]
@@ -399,15 +335,10 @@ def cast_rays(region, sides, bins, guides, first, last, seed, bounces, groups, s
                                            lattice[j, 1], uniform(state))
             for b in range(n_b):
                 through[k, b] = w
-            eps = _offset(a, offset_rel)
-            if direct_light:      # the lamps' light on this side at the ray's point
-                e, g, at = lamp_sample(lamps, scratch, px, py, pz, nx, ny, nz, eps, uniform(state), uniform(state),
-                                       uniform(state))
-                for b in range(n_b):
-                    lamp[k, b] = lamps.photons * lamps.weight[e, b] * g if at > 0.0 else 0.0
             if w == 0.0:
                 out[k] = NOTHING
                 continue
+            eps = _offset(a, offset_rel)
             ox, oy, oz = px + eps * nx, py + eps * ny, pz + eps * nz
             code = NOTHING
             for bounce in range(bounces + 1):
@@ -439,15 +370,6 @@ def cast_rays(region, sides, bins, guides, first, last, seed, bounces, groups, s
                 hx, hy, hz = ox + tt * dx, oy + tt * dy, oz + tt * dz
                 p_r = r_mean / (r_mean + t_mean)
                 side = -1.0 if back else 1.0          # the hit side's normal: towards where the ray came from
-                if direct_light:    # the lamps' light this point sends along the path: reflected, or through it
-                    eps = _offset(verts[tri], offset_rel)
-                    e, g, at = lamp_sample(lamps, scratch, hx, hy, hz, side * hnx, side * hny, side * hnz, eps,
-                                           uniform(state), uniform(state), uniform(state))
-                    other = tri_side[tri, 0 if back else 1]
-                    if g > 0.0 and (at > 0.0 or other >= 0):
-                        for b in range(n_b):
-                            share = reflect[es, b] if at > 0.0 else transmit[other, b]
-                            lamp[k, b] += through[k, b] * share * lamps.photons * lamps.weight[e, b] * g
                 on = es                               # the element side the path leaves from
                 if uniform(state) < p_r:
                     for b in range(n_b):
@@ -471,7 +393,7 @@ def cast_rays(region, sides, bins, guides, first, last, seed, bounces, groups, s
 
 
 @njit(nogil=True, cache=True)
-def read_field(out, ray_tri, through, by_bin, field_total, bins_per_cell, ts_side, n_sides, lamp):
+def read_field(out, ray_tri, through, by_bin, field_total, bins_per_cell, ts_side, n_sides):
     """What the rays read, per triangle side (2 t + 0 front, + 1 back) of the region: returns ``rays`` (1 + S,
     n_ts) how many rays left each (all, then each group g: the rays j ≡ g mod S of their side, ``ray_tri``
     order), ``direct`` (1 + S, n_ts, B) the sums of what those that left the region read there (``bins_per_cell``
@@ -489,13 +411,13 @@ def read_field(out, ray_tri, through, by_bin, field_total, bins_per_cell, ts_sid
     batch = np.zeros((S, n_sides, n_b))
     met = np.empty(n, np.int64)
     n_met = read_rays(out, ray_tri, through, by_bin, field_total, bins_per_cell, ts_side, 0, n, (rays, direct, batch),
-                      met, lamp)
+                      met)
     src, dst, weight, start = field_links(out, ray_tri, through, met[:n_met], S)
     return rays, direct, batch, src, dst, weight, start
 
 
 @njit(nogil=True, cache=True)
-def read_rays(out, ray_tri, through, by_bin, field_total, bins_per_cell, ts_side, k0, k1, sums, met, lamp):
+def read_rays(out, ray_tri, through, by_bin, field_total, bins_per_cell, ts_side, k0, k1, sums, met):
     """:func:`read_field`'s sums for rays ``k0 .. k1 - 1``, added into ``sums`` = (rays, direct, batch); the rays
     whose path ended on a surface are written, in order, to ``met[k0:]``; returns how many.  Rays of different
     element sides add to different rows: parts of the rays cut between sides can be read on threads of their own,
@@ -508,15 +430,6 @@ def read_rays(out, ray_tri, through, by_bin, field_total, bins_per_cell, ts_side
         g = k % S
         rays[0, ts] += 1.0
         rays[1 + g, ts] += 1.0
-        if lamp.shape[0] > 0:          # the lamps' direct light, the same for every batch of the field
-            es = ts_side[ts]
-            for b in range(n_b):
-                v = lamp[k, b]
-                direct[0, ts, b] += v
-                direct[1 + g, ts, b] += v
-                if es >= 0:
-                    for h in range(S):
-                        batch[h, es, b] += v
         code = out[k]
         if code >= 0:
             met[k0 + n_met] = k

@@ -189,9 +189,6 @@ Control = namedtuple("Control", [
 
 # the chamber's light stored once and replayed into each step's plant (kernel.gather, lpy_light.estimators.reuse)
 REPLAY_STORE, REPLAY_CONTINUE = 1, 2
-# REPLAY_STORE's log of segments, those that left a lamp unscattered left out (a light field whose lamps' direct
-# light each step computes itself: kernel.field.lamp_sample)
-REPLAY_SCATTERED = 3
 # columns of a stored vertex (Replay.vpl): x, y, z, normal (3), mode, material, scale, triangle, nee_stats row,
 # then the photon's weights (B)
 VPL_W = 11
@@ -337,18 +334,6 @@ RayEnds = namedtuple("RayEnds", [
                      # left the region by (kernel.field.NOTHING: it reads nothing)
     "ray_tri",       # (n,) int64: the triangle side it left from
     "through",       # (n, B) float64: its path's throughput per band
-    "lamp",          # (n, B) float64: the lamps' direct light it brought (kernel.field.lamp_sample: at its origin
-                     # and, × the throughput, at each bounce), in the field's units; (0, B) where the field holds
-                     # the lamps' direct light itself
-])
-
-Lamps = namedtuple("Lamps", [
-    "geometry",      # Geometry: the whole scene (chamber and plant), for the shadow rays to the lamps
-    "kind",          # (E,) int32: kernel.emission.EMIT_* of each emitter element
-    "data",          # (E, 3, 3) float64: its geometry (Emitters.data)
-    "cdf",           # (E,) float64: cumulative share of the emitted power
-    "weight",        # (E, B) float64: a photon's weight per band as it leaves element e
-    "photons",       # float: the field's photons (its sums are over all of them); 0: no direct light computed
 ])
 
 

@@ -53,8 +53,8 @@ from .organ_zones import organ_zone_event
 from .ptr import load_f32, load_i64, load_u32
 from .raylog import RAY_PHOTON
 from .rays import cast, hit_point, magnitude, pick_coplanar, set_ray
-from .records import (ABSORB, DIFFUSE_R, DIFFUSE_T, REPLAY_CONTINUE, REPLAY_SCATTERED, REPLAY_STORE, SENSOR_DISC,
-                      SPECULAR_R, START_W, V_SURFACE, VPL_W, Accumulator, ControlWork, Photon, Vertex)
+from .records import (ABSORB, DIFFUSE_R, DIFFUSE_T, REPLAY_CONTINUE, REPLAY_STORE, SENSOR_DISC, SPECULAR_R, START_W,
+                      V_SURFACE, VPL_W, Accumulator, ControlWork, Photon, Vertex)
 from .rng import n_draws, seed_stream, uniform
 from .sampling import cosine_hemisphere, mirror, phong_lobe
 from .tallies import (C_BATCHES, C_CAND_OVERFLOW, C_LOST, C_RAYS, N_COUNTERS, fate_rows, flush,  # noqa: F401
@@ -402,8 +402,7 @@ def trace_photons(scene, nee, organs, seed, first, count, tallies, stats, photon
             if replay is not None:
                 if resumed and (tri < 0 or geo.receiver[tri] < replay.organ0):
                     break        # the chamber again: its light from here on is the store's
-                if ((replay.mode == REPLAY_STORE or (replay.mode == REPLAY_SCATTERED and depth > 0))
-                        and on_chamber and not after_diffuse):
+                if replay.mode == REPLAY_STORE and on_chamber and not after_diffuse:
                     hit_organ = tri >= 0 and geo.receiver[tri] >= replay.organ0
                     if _crosses(replay.box, ox, oy, oz, dx, dy, dz, math.inf if hit_organ else t):
                         k = replay.count[1]

@@ -53,8 +53,8 @@ from ..kernel import embree
 from ..kernel.emission import EMIT_CYLINDER, EMIT_LINE, EMIT_SPHERE, EMIT_TRIANGLE
 from ..kernel.field import (add_crossings, bin_crossings, cast_rays, field_links, guide_tables, read_rays, side_links,
                             side_sums, solve_passes)
-from ..kernel.records import (ABSORB, DIFFUSE_R, DIFFUSE_T, REPLAY_SCATTERED, REPLAY_STORE, SPECULAR_R, SPECULAR_T,
-                              START_W, VPL_W, FieldBins, Guide, Lamps, RayEnds, RaySides, Region, Replay, new_tallies)
+from ..kernel.records import (ABSORB, DIFFUSE_R, DIFFUSE_T, REPLAY_STORE, SPECULAR_R, SPECULAR_T, START_W, VPL_W,
+                              FieldBins, Guide, RayEnds, RaySides, Region, Replay, new_tallies)
 from ..kernel.tallies import N_COUNTERS
 from ..kernel.trace import trace_chunk
 from .reuse import chamber_key, inside
@@ -108,11 +108,6 @@ class FieldSettings:
     cosine_share : float
         The share of each guided side's first rays drawn cosine-weighted (the rest from its guide), in (0, 1]:
         what keeps the directions the guide misjudges (the plant in the way, the organ's extent) sampled.
-    direct : bool
-        The lamps' direct light (what reaches a point unscattered) from each step's own shadow rays: one lamp point
-        drawn by power for each ray's origin and for each bounce of its path (:func:`kernel.field.lamp_sample`),
-        exact at any distance from a lamp; the field then holds only the light scattered at least once.
-        False: the field holds it all, read through its bins.
     check_photons : int
         Photons of the ``nee`` run that checks each field as it is traced (:mod:`lpy_light.plant.verify`: the
         field's step of the plant it was traced with against ``nee``'s, leaves and buds apart; a field that fails
@@ -137,7 +132,6 @@ class FieldSettings:
     guide_phi: int = 32
     cosine_share: float = 0.25
     check_photons: int = 100_000
-    direct: bool = False
 
     def __post_init__(self):
         for name, lo in (("store_photons", 1), ("batches", 4), ("cells", 1), ("rings", 1), ("sectors", 1),
@@ -159,9 +153,6 @@ class FieldSettings:
                 or not 0 < self.cosine_share <= 1:
             raise InputError("field setting 'cosine_share' must be a number in (0, 1], got %r" % (self.cosine_share,))
         object.__setattr__(self, "cosine_share", float(self.cosine_share))
-        if not isinstance(self.direct, (bool, np.bool_)):
-            raise InputError("field setting 'direct' must be true or false, got %r" % (self.direct,))
-        object.__setattr__(self, "direct", bool(self.direct))
 
 
 def field_settings(spec) -> FieldSettings:
@@ -375,7 +366,6 @@ class LightField:
     crossings: int = 0
     seconds: float = 0.0
     cpu_seconds: float = 0.0
-    direct: bool = False
 
     @property
     def batches(self) -> int:
@@ -404,16 +394,15 @@ class LightField:
         return {"field": self.name, "photons": self.photons, "batches": self.batches, "seed": self.seed,
                 "box": [float(x) for x in self.box], "cells": int((self.grid[:, 0] * self.grid[:, 1]).sum()),
                 "directions": self.bins_per_cell, "crossings": self.crossings, "pieces": int(len(self.pieces[2])),
-                "seconds": round(self.seconds, 3), "cpu_seconds": round(self.cpu_seconds, 3),
-                "lamps_direct": "each step's shadow rays" if self.direct else "in the field"}
+                "seconds": round(self.seconds, 3), "cpu_seconds": round(self.cpu_seconds, 3)}
 
 
 def field_key(kscene, box, settings: FieldSettings, seed, flux=None) -> str:
     """What a field depends on: the chamber and lamps (:func:`lpy_light.estimators.reuse.chamber_key`), the region and
     the field's settings."""
     s = settings
-    return chamber_key(kscene, box, s.store_photons, s.batches, seed, flux) + "-%d.%d.%d.%d%s" % (
-        s.cells, s.rings, s.sectors, s.pieces, "-scattered" if s.direct else "")
+    return chamber_key(kscene, box, s.store_photons, s.batches, seed, flux) + "-%d.%d.%d.%d" % (
+        s.cells, s.rings, s.sectors, s.pieces)
 
 
 def build_field(kscene, settings: FieldSettings, seed: int = 1, threads: int | None = None, box=None,
@@ -443,8 +432,7 @@ def build_field(kscene, settings: FieldSettings, seed: int = 1, threads: int | N
         first, count = chunk
         cap = 2 * count
         while True:
-            replay = Replay(REPLAY_SCATTERED if settings.direct else REPLAY_STORE, organ0, np.zeros((1, START_W + B)),
-                            np.zeros((1, VPL_W + B)),
+            replay = Replay(REPLAY_STORE, organ0, np.zeros((1, START_W + B)), np.zeros((1, VPL_W + B)),
                             np.empty((cap, START_W + B)), np.zeros(2, np.int64), box)
             tallies, stats = new_tallies(kscene.n_rows, B, kscene.n_stats, N_COUNTERS)
             scratch = embree.new_scratch()
@@ -468,7 +456,7 @@ def build_field(kscene, settings: FieldSettings, seed: int = 1, threads: int | N
     pieces = chamber_pieces(kscene, box, settings.pieces)
     return LightField(field_key(kscene, box, settings, seed, flux), int(photons), int(seed), box, grid, face0,
                       settings.rings, settings.sectors, field, pieces, crossings, time.perf_counter() - t0,
-                      time.process_time() - c0, bool(settings.direct))
+                      time.process_time() - c0)
 
 
 # -- a step ---------------------------------------------------------------------------------------------------
@@ -620,12 +608,7 @@ def field_step(kscene, field: LightField, settings: FieldSettings, seed: int = 1
     sides = RaySides(el["tri_start"], el["tris"], el["tri_cdf"], rays, ray_start, refl, trans, guide_of)
     bins = FieldBins(field.box, field.grid, field.face0, int(field.rings), int(field.sectors))
     guides = Guide(guide, float(settings.cosine_share), int(settings.guide_phi))
-    lamp = np.zeros((int(ray_start[-1]) if field.direct else 0, kscene.n_bands))
-    kscene_records = kscene.records(next_events=False)
-    ends = RayEnds(out, ray_tri, through, lamp)
-    em = kscene_records[0].emitters
-    lamps = Lamps(kscene_records[0].geometry, em.kind, em.data, em.cdf, em.weight,
-                  float(field.photons) if field.direct else 0.0)
+    ends = RayEnds(out, ray_tri, through)
 
     # each part's rays read where they ended on the thread that cast them (parts are whole sides: each sum has
     # rows of its own, summed in the same order as on one thread)
@@ -642,11 +625,11 @@ def field_step(kscene, field: LightField, settings: FieldSettings, seed: int = 1
         t = time.perf_counter()
         scratch = embree.new_scratch()
         cast_rays(geometry, sides, bins, guides, int(bounds[i]), int(bounds[i + 1]), int(seed), int(settings.bounces),
-                  int(field.batches), scratch.ctypes.data, ends, lamps)
+                  int(field.batches), scratch.ctypes.data, ends)
         seconds[i, 0] = time.perf_counter() - t
         k0, k1 = int(ray_start[bounds[i]]), int(ray_start[bounds[i + 1]])
         n_met = read_rays(out, ray_tri, through, by_bin, total, field.bins_per_cell, ts_side, k0, k1,
-                          (counts, direct, batch), met, lamp)
+                          (counts, direct, batch), met)
         seconds[i, 1] = time.perf_counter() - t - seconds[i, 0]
         return met[k0:k0 + n_met]
 
