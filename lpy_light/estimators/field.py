@@ -92,10 +92,11 @@ class FieldSettings:
         The region's grid for the chamber's pieces, along its longest edge.
     bounces : int
         Where a ray meets a surface, its path goes on this many times before it reads the outgoing light of the
-        triangle it ends on (that triangle's mean: the bounces make what it reads local).  3: on the report's
-        rose (buds in leaf axils, leaves R + T ≈ 0.95 in far red) the buds' R:FR against ``nee`` went from
-        −0.44 (1 bounce) to −0.30 (2) and −0.06 (3), at +17 % of a step on the procedural rose
-        (``docs/estimators.md``).
+        triangle it ends on (that triangle's mean: the bounces make what it reads local).  Far red scatters
+        many times among leaves (R + T ≈ 0.95): the buds' R:FR against ``nee`` on the procedural rose is
+        −0.021 after 1 bounce, −0.012 after 3, −0.004 after 6 (eight fields each); on the report's rose, whose
+        buds sit in the leaves' axils, −0.44, −0.06 and ~0 (±0.05).  6 bounces cost ~6 % of a step more than 3
+        (``docs/performance.md``, "The light field").
     growth, margin : float
         The region: the organs' bounds grown by ``growth`` × their size and ``margin`` metres each side.
     renew : int
@@ -124,7 +125,7 @@ class FieldSettings:
     shading_rays: int = 128
     piece_rays: int = 256
     pieces: int = 4
-    bounces: int = 3
+    bounces: int = 6
     growth: float = 0.25
     margin: float = 0.1
     renew: int = 10
