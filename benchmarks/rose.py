@@ -152,7 +152,7 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--photons", type=float, default=300_000)
     ap.add_argument("--steps", type=int, default=5)
-    ap.add_argument("--estimator", default=DEFAULT_ESTIMATOR, choices=tuple(ESTIMATORS))
+    ap.add_argument("--estimator", default=DEFAULT_ESTIMATOR, choices=tuple(ESTIMATORS) + ("auto",))
     ap.add_argument("--threads", type=int, default=None)
     ap.add_argument("--targets", nargs="+", default=["Leaf", "Bud"],
                     help="modules next events aim at (default: Leaf Bud, as lsystems/rose.lpy; 'all': every organ)")
@@ -199,6 +199,8 @@ def main():
             stage, len(organs), step.triangles, total, cpu, t_convert, step.seconds, 100 * np.median(rel),
             100 * np.percentile(rel, 90), 100 * np.sqrt(np.mean(rel ** 2)),
             100 * np.median(bud) if len(bud) else float("nan")))
+        if "auto" in step.extra:
+            print("     estimator auto: %s -- %s %s" % (step.extra["auto"]["estimator"], step.extra["auto"]["why"], step.extra["auto"]["cpu_s"]))
     # what building once and caching save
     t = time.perf_counter()
     model.cache = type(model.cache)()
@@ -209,7 +211,7 @@ def main():
     warm = time.perf_counter() - t
     from lpy_light.run import simulate
     t = time.perf_counter()
-    simulate.KernelScene(model.chamber, args.estimator)
+    simulate.KernelScene(model.chamber, model.kscene.estimator)
     chamber_build = time.perf_counter() - t
     t = time.perf_counter()
     model.kscene.set_organs(organs, model.materials)

@@ -519,11 +519,13 @@ def _grow_parser(sub):
                         "R:FR (0.04), or on what the rules read: par=0.03 (relative), rfr=0.02 (absolute), "
                         "LO-HI=0.05 (a band's ppfd, relative), comma-separated")
     g.add_argument("--seed", type=int, default=None, help="random seed of the light model (default: the model's)")
-    g.add_argument("--estimator", choices=("nee", "field", "reuse"), default=None,
+    g.add_argument("--estimator", choices=("auto", "nee", "field", "reuse"), default=None,
                    help="nee: every step traces the chamber's photons again; field: the light entering the plant's "
                         "region traced once into a field (renewed every 10 steps), each step's rays stay in the "
-                        "region; reuse: the chamber's light traced once into a store and gathered at every organ "
-                        "each step (default: the model's, else nee)")
+                        "region; auto: the first field's self-check against nee chooses, for the whole run, the "
+                        "field where it passes and is cheaper on every kind of organ, else nee; reuse: the "
+                        "chamber's light traced once into a store and gathered at every organ each step (default: "
+                        "the model's, else nee)")
     g.add_argument("--threads", type=int, default=None, help="threads (default: all cores)")
     g.add_argument("--verify", type=_count, default=None, metavar="N",
                    help="also light the first N lit steps by an independent nee run at the model's photons per step, "

@@ -761,7 +761,9 @@ class FieldKeeper:
             self.verdict = None
         elif not self.trusted:
             return None
+        c0 = time.process_time()
         result = field_step(kscene, field, self.settings, seed=seed, threads=threads, read=read, scale=scale)
+        result.extra["cpu_s"] = time.process_time() - c0        # CPU s of the step's rays, every thread's
         result.extra["store"] = dict(field.describe(), why=self.why, steps_from_it=self.steps)
         if self.built != built and check is not None and self.settings.check_photons > 0:
             self.verdict = check(field, result)

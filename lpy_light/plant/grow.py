@@ -139,7 +139,7 @@ def cmd_grow(args) -> int:
                             ("threads", args.threads)):
             if value is not None:
                 setattr(model, name, lightmod._photons(value) if name == "photons" else value)
-    if args.estimator is not None and args.estimator != model.estimator:
+    if args.estimator is not None and (args.estimator != model.estimator or model.auto is not None):
         model.use_estimator(args.estimator)
     if getattr(args, "verify", None):
         model.verify = args.verify
@@ -175,6 +175,9 @@ def cmd_grow(args) -> int:
                       % (check["field"], check["photons"], check["cpu_s"], check["share_of_field"] or 0,
                          summary_line(check), "" if check["passed"] else " -- FAILED: lit by nee until renewed"),
                       file=sys.stderr, flush=True)
+            if "auto" in step.extra:
+                print("    estimator auto: %s -- %s" % (step.extra["auto"]["estimator"], step.extra["auto"]["why"]),
+                      file=sys.stderr, flush=True)
             if "verify" in step.extra:
                 print("    verify against nee at %d photons: %s" % (model.photons, summary_line(step.extra["verify"])),
                       file=sys.stderr, flush=True)
@@ -208,6 +211,7 @@ def cmd_grow(args) -> int:
                "bands": model.chamber.band_labels, "plant_unit_m": model.scale * model.chamber.metres_per_unit,
                "position": list(map(float, model.position)), "scene": str(model.chamber.source),
                "seed": model.seed, "estimator": model.estimator,
+               "auto": None if model.auto is None else model.auto.choices,
                "settings": dataclasses.asdict(model.kscene.settings), "warnings": seen.summary(),
                "machine": machine()}
     if model.keeper is not None:

@@ -48,6 +48,7 @@ from .organs import TessellationCache, mesh_key, organ_from_mesh, plant_material
 from . import verify as verifying
 from ..process_state import preserved_locale
 from ..estimators.field import FieldKeeper, field_settings
+from .auto import AUTO, PILOT_SEED, Chooser
 from ..estimators.reuse import StoreKeeper, reuse_settings
 from ..chamber.scene import UNITS, load_scene, resolve_scene
 
@@ -230,12 +231,15 @@ class LightModel:
         self.precision = precision          # checked against the scene's bands (:func:`precision.parse_goal`)
         self.parameter = parameter
         self.progress = progress
+        self.auto = Chooser(field) if estimator == AUTO else None     # estimator="auto" (lpy_light.plant.auto)
+        estimator = "field" if self.auto is not None else estimator
         self.estimator = estimator_named(estimator).name
         # a stored estimator traces with nee's records: the store's trace, the gather and the paths are its events
         self.kscene = _call(live, simulate.KernelScene, self.chamber,
                             estimator="nee" if estimator_named(estimator).stored else estimator,
                             one_sided_organs=one_sided_organs)
         self.keeper = _keeper(self.estimator, reuse, field, seed)
+        self._auto_needs_a_check()
         self.verify, self.verification = verifying.verify_count(verify), verifying.Verification()
         self.kscene.configure(**_plant_settings(nee_picks=nee_picks, cone_rays=cone_rays, local_rays=local_rays))
         _plant_settings(mirror_events=mirror_events)         # checked here, used at each step (_mirror_events)
@@ -368,6 +372,7 @@ class LightModel:
         if not organs:                         # nothing to light yet (a seedling before its first organ)
             self.step += 1
             return StepResult(self.step - 1, {}, 0, time.perf_counter() - t0, 0, 0, 0)
+        self._pilot_again(organs)
         outside = self._outside(organs)
         self._beyond_survey(organs)
         targets = None if self.targets is None else [o.module in self.targets for o in organs]
@@ -414,6 +419,8 @@ class LightModel:
             if key in result.extra:
                 step.extra[key] = result.extra[key]
         verifying.after_step(self, step, result, organs, read, checks)     # field_check, lit_by, verify
+        if self.auto is not None and "field_check" in step.extra:
+            self._choose(step, len(organs))
         compiled = getattr(self.kscene, "compile_seconds", 0.0) - compiled
         if compiled > 0:              # the kernel compiled for these organs (first run only), within the step's time
             step.extra["compile_seconds"] = compiled
@@ -421,14 +428,37 @@ class LightModel:
         return step
 
     def use_estimator(self, name: str, reuse=None, field=None):
-        """Light the next steps with estimator ``name`` (``nee``, ``field`` or ``reuse``, all trace with nee's
-        records; ``reuse``, ``field``: their settings, as the constructor's): ``lpy-light grow --estimator``."""
+        """Light the next steps with estimator ``name`` (``nee``, ``field``, ``reuse`` or ``auto``, all trace with
+        nee's records; ``reuse``, ``field``: their settings, as the constructor's): ``lpy-light grow --estimator``."""
+        self.auto = Chooser(field) if name == AUTO else None
+        name = "field" if self.auto is not None else name
         est = estimator_named(name)
         if self.kscene.estimator != "nee" or not (est.stored or est.name == "nee"):
             raise InputError("a light model of estimator %s cannot switch to %s (nee, field and reuse switch)"
                              % (self.estimator, est.name))
         self.estimator = est.name
         self.keeper = _keeper(est.name, reuse, field, self.seed)
+        self._auto_needs_a_check()
+
+    def _auto_needs_a_check(self):
+        if self.auto is not None and self.keeper.settings.check_photons <= 0:
+            raise InputError("estimator auto chooses from the field's self-check: field check_photons must be > 0")
+
+    def _choose(self, step, organs: int):
+        """``estimator="auto"``: a choice from the field's self-check of this step (:class:`lpy_light.plant.auto.
+        Chooser`), in the step's ``extra["auto"]``; ``nee`` chosen, the next steps are ``nee``'s."""
+        choice = self.auto.decide(step.extra["field_check"], self.keeper.settings.renew, step.step, organs)
+        step.extra["auto"] = choice
+        logging.getLogger("lpy_light").info("estimator auto: %s (%s)", choice["estimator"], choice["why"])
+        if choice["estimator"] == "nee":
+            self.estimator, self.keeper = "nee", None
+
+    def _pilot_again(self, organs):
+        """``estimator="auto"`` on ``nee``: the plant grew :data:`lpy_light.plant.auto.REPILOT` times since the last
+        pilot, so this step traces a field and checks it again (:meth:`_choose` decides after it)."""
+        if self.auto is not None and self.auto.repilot(len(organs)):
+            self.estimator = "field"
+            self.keeper = _keeper("field", None, self.auto.field, self.seed + PILOT_SEED * len(self.auto.choices))
 
     def _reuse_step(self, organs, precision_of, read):
         """A step of the ``reuse`` estimator (:class:`lpy_light.estimators.reuse.StoreKeeper`): one gather, and with a

@@ -48,6 +48,8 @@ from contextlib import contextmanager
 
 import numpy as np
 
+from .auto import gains_of
+
 log = logging.getLogger("lpy_light")
 
 #: relative tolerance on PAR of each kind of organ, and the absolute one on R:FR
@@ -349,6 +351,7 @@ def field_self_check(model, organs, read):
     def check(field, result):
         c0, w0 = time.process_time(), time.perf_counter()
         nee, parts = nee_run(model, photons, field.seed + CHECK_SEED)
+        nee_cpu = time.process_time() - c0
         compared = compare_runs(model, result, nee, organs, read, model.step, parts)
         verdict = Totals().add(*compared).summary()
         pool = keeper.pool                  # the last POOL fields' comparisons
@@ -364,7 +367,9 @@ def field_self_check(model, organs, read):
         verdict.update({"field": field.name, "traced_at_step": model.step, "photons": int(photons), "parts": PARTS,
                         "seed": int(field.seed + CHECK_SEED), "cpu_s": round(cpu, 3),
                         "wall_s": round(time.perf_counter() - w0, 3), "field_cpu_s": round(field_cpu, 3),
-                        "share_of_field": round(cpu / field_cpu, 3) if field_cpu > 0 else None})
+                        "share_of_field": round(cpu / field_cpu, 3) if field_cpu > 0 else None,
+                        "nee_cpu_s": round(nee_cpu, 3), "step_cpu_s": round(float(result.extra.get("cpu_s", 0.0)), 3)})
+        verdict["gain"] = gains_of(compared[0], verdict, keeper.settings.renew)     # what estimator="auto" reads
         return verdict
 
     return check

@@ -1,0 +1,117 @@
+"""``estimator="auto"`` (:mod:`lpy_light.plant.auto`): the field's self-check chooses between the field and ``nee``.
+
+The arithmetic of the choice on made-up checks (a run's variance falls as 1/its cost: the gain is exact there),
+then the choice in a :class:`LightModel` on ``test_field``'s room and plant (a leaf and 25 buds): the step after
+a choice is lit by the chosen estimator, a field that fails its check is never chosen, and a plant lit by ``nee``
+is piloted again once it has grown."""
+import dataclasses
+
+import numpy as np
+import pytest
+
+import lpy_light.estimators.field as field_module
+import lpy_light.plant.auto as auto
+from lpy_light.errors import InputError
+from lpy_light.plant.light import LightModel
+from scenes import write_scene
+from test_reuse import GREEN, ROOM, THIN, _plant
+from test_verify import CHECKED
+
+
+def _rows(field_sigma, nee_sigma, kind="buds", value=10.0):
+    return [{"kind": kind, "estimate_std": f, "nee_std": n, "nee": value} for f, n in zip(field_sigma, nee_sigma)]
+
+
+def _check(passed=True, nee_cpu=2.0, step_cpu=0.5, field_cpu=4.0, check_cpu=2.0):
+    return {"passed": passed, "nee_cpu_s": nee_cpu, "step_cpu_s": step_cpu, "field_cpu_s": field_cpu,
+            "cpu_s": check_cpu, "photons": 100_000}
+
+
+def test_the_gain_is_the_ratio_of_cost_times_variance_at_the_90th_percentile():
+    """Twenty organs, the field's σ half of nee's on each: at equal cost the field is 4x cheaper; its cost per step
+    (step + (trace + check) / renew = 0.5 + 6 / 10 = 1.1 CPU s) against nee's 2.2 halves that: gain 8.  The
+    percentile, not the mean, sets it: one organ the field serves 10x worse moves it by under 10 % (a mean: 5x)."""
+    nee = np.linspace(1.0, 2.0, 20)
+    check = _check(nee_cpu=2.2)
+    gain = auto.gains_of(_rows(nee / 2, nee), check, renew=10)
+    assert gain["all"]["gain"] == pytest.approx(8.0, rel=1e-3) and gain["all"]["organs"] == 20
+    assert gain["buds"] == gain["all"]
+    worse = nee / 2
+    worse[3] = 10 * nee[3]
+    assert auto.gains_of(_rows(worse, nee), check, renew=10)["all"]["gain"] == pytest.approx(8.0, rel=0.1)
+    assert auto.field_cost(check, renew=10) == pytest.approx(1.1)
+    # organs without a σ in either run are left out
+    assert auto.gains_of(_rows([0.0, np.nan], [1.0, 1.0]), check, renew=10) == {}
+
+
+def test_the_field_is_chosen_only_where_it_passed_and_is_cheaper():
+    nee = np.linspace(1.0, 2.0, 20)
+    for field_sigma, passed, chosen in ((nee / 2, True, "field"), (nee * 2, True, "nee"), (nee / 2, False, "nee")):
+        check = _check(passed=passed)
+        check["gain"] = auto.gains_of(_rows(field_sigma, nee) + _rows(field_sigma, nee, "leaves"), check, 10)
+        choice = auto.choose(check, 10)
+        assert choice["estimator"] == chosen, choice
+        assert ("failed its self-check" in choice["why"]) == (not passed)
+        assert set(choice["gain"]) == {"all", "buds", "leaves"} and choice["cpu_s"]["field_per_step"] == 1.1
+
+
+def test_a_plant_lit_by_nee_is_piloted_again_once_it_doubled():
+    chooser = auto.Chooser()
+    assert chooser.current == "field" and not chooser.repilot(1000)       # the first pilot runs
+    check = _check(passed=False)
+    check["gain"] = {}
+    chooser.decide(check, 10, step=0, organs=30)
+    assert chooser.current == "nee" and not chooser.repilot(59) and chooser.repilot(60)
+
+
+@pytest.fixture(scope="module")
+def room(tmp_path_factory):
+    return write_scene(tmp_path_factory.mktemp("auto"), ROOM)
+
+
+def _model(scene, field=CHECKED):
+    return LightModel(scene, organs={"Bud": GREEN, "Leaf": THIN}, lamp_flux=100.0, plant_unit="mm",
+                      position=(500, 500, 0), photons=100_000, estimator="auto", seed=5, threads=2, field=field)
+
+
+@pytest.mark.parametrize("cost, chosen", [(1e-6, "field"), (1e6, "nee")])
+def test_the_step_after_the_choice_is_lit_by_the_chosen_estimator(room, monkeypatch, cost, chosen):
+    """The field's cost made negligible or prohibitive: the first step (lit by the field, which passed its check)
+    chooses, the second is lit by the chosen estimator, and the choice carries the check's figures."""
+    monkeypatch.setattr(auto, "field_cost", lambda check, renew: cost)
+    model = _model(room)
+    organs = model.organs_from_meshes(_plant())
+    first = model.run(organs)
+    choice = first.extra["auto"]
+    assert first.extra["field_check"]["passed"] and first.extra["lit_by"] == "field"
+    assert choice["estimator"] == chosen and choice["at_step"] == 0 and choice["organs_lit"] == 26
+    assert choice["gain"]["all"]["organs"] >= 20 and choice["cpu_s"]["nee_check_photons"] == CHECKED.check_photons
+    second = model.run(organs)
+    assert model.estimator == chosen and second.extra.get("lit_by", "nee") == chosen
+    assert "auto" not in second.extra and model.auto.choices == [choice]
+
+
+def test_a_field_that_fails_its_check_is_not_chosen_and_a_grown_plant_is_piloted_again(room, monkeypatch):
+    """Every field's light scaled by 0.9 (its check fails) and its cost made negligible: ``nee`` is chosen all the
+    same; the plant, grown from 6 organs to 26, is piloted again (a second field, checked) and ``nee`` kept."""
+    build = field_module.build_field
+
+    def scaled(*args, **kwargs):
+        f = build(*args, **kwargs)
+        return dataclasses.replace(f, field=f.field * 0.9)
+
+    monkeypatch.setattr(field_module, "build_field", scaled)
+    monkeypatch.setattr(auto, "field_cost", lambda check, renew: 1e-6)
+    model = _model(room)
+    plant = _plant()
+    small = model.organs_from_meshes({k: plant[k] for k in list(plant)[:6]})
+    steps = [model.run(small), model.run(small), model.run(model.organs_from_meshes(plant))]
+    assert [s.extra.get("auto", {}).get("estimator") for s in steps] == ["nee", None, "nee"]
+    assert "failed its self-check" in steps[0].extra["auto"]["why"] and steps[0].extra["lit_by"].startswith("nee")
+    assert "field_check" not in steps[1].extra and steps[2].extra["field_check"]["passed"] is False
+    assert [c["organs_lit"] for c in model.auto.choices] == [6, 26] and model.estimator == "nee"
+
+
+def test_auto_needs_the_fields_self_check(room):
+    with pytest.raises(InputError, match="check_photons"):
+        _model(room, field=dataclasses.replace(CHECKED, check_photons=0))
