@@ -151,22 +151,28 @@ def main(argv=None):
         rb, ra = cal.check["rms_before"], cal.check["rms_after"]
         ratio = ra / rb
         honest = cal.cv_after / ra
+        sa = cal.check["rms_after_sigma"]
+        z = (cal.cv_after - ra) / np.sqrt(cal.cv_after_sigma ** 2 + sa ** 2)   # the two rms apart, in their σ
         results[name] = {"fitted_sites": int(fit_mask.sum()), "held_sites": int(held_mask.sum()),
                          "cv_before": cal.cv_before.tolist(), "cv_after": cal.cv_after.tolist(),
                          "held_before": rb.tolist(), "held_after": ra.tolist(), "ratio": ratio.tolist(),
-                         "cv_over_held": honest.tolist(),
+                         "cv_over_held": honest.tolist(), "cv_after_sigma": cal.cv_after_sigma.tolist(),
+                         "held_after_sigma": sa.tolist(), "z": z.tolist(),
                          "fitted": [p["parameter"] for p in cal.parameters if p["fitted"]],
                          "warnings": cal.warnings, "seconds": seconds}
         print("\n## %s: %d sites fitted, %d held out (%.0f s, %d runs in all)" % (
             name, fit_mask.sum(), held_mask.sum(), seconds, runs.runs))
-        print("| band | cv before | cv after | held before | held after | after / before | cv after / held after |")
-        print("|---|---|---|---|---|---|---|")
+        print("| band | cv before | cv after | held before | held after | after / before | cv after / held after "
+              "| (cv − held) / σ |")
+        print("|---|---|---|---|---|---|---|---|")
         for b, band in enumerate(cal.bands):
-            print("| %s | %.1f | %.1f | %.1f | %.1f | %.2f | %.2f |" % (
-                band, 100 * cal.cv_before[b], 100 * cal.cv_after[b], 100 * rb[b], 100 * ra[b], ratio[b], honest[b]))
+            print("| %s | %.1f | %.1f ± %.1f | %.1f | %.1f ± %.1f | %.2f | %.2f | %+.1f |" % (
+                band, 100 * cal.cv_before[b], 100 * cal.cv_after[b], 100 * cal.cv_after_sigma[b], 100 * rb[b],
+                100 * ra[b], 100 * sa[b], ratio[b], honest[b], z[b]))
         print("median after / before %.2f, max %.2f, bands <= 1.1: %d of %d; cv after / held after: median %.2f "
-              "(%.2f-%.2f)" % (np.median(ratio), ratio.max(), (ratio <= 1.1).sum(), len(ratio), np.median(honest),
-                               honest.min(), honest.max()))
+              "(%.2f-%.2f); cv after within 2σ of held after in %d of %d bands" % (
+                  np.median(ratio), ratio.max(), (ratio <= 1.1).sum(), len(ratio), np.median(honest), honest.min(),
+                  honest.max(), (np.abs(z) <= 2).sum(), len(z)))
         print("fitted: %s" % (", ".join(results[name]["fitted"]) or "nothing but the bands' scales"))
         for w in cal.warnings:
             print("warning: %s" % w)

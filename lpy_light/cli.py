@@ -492,13 +492,14 @@ def cmd_calibrate(args) -> int:
     base = args.scene if args.scene in builtin_scenes() and not Path(args.scene).exists() else str(path.resolve())
     calibrate.write_outputs(args.out, cal, base, path.stem, plot=not args.no_plot)
     if not args.quiet:
-        for b, before, after in zip(cal.bands, cal.cv_before, cal.cv_after):
-            print("lpy-light: %-8s cross-validated rms %5.1f %% -> %5.1f %%" % (b, 100 * before, 100 * after),
-                  file=sys.stderr)
+        for b, before, after, sigma in zip(cal.bands, cal.cv_before, cal.cv_after, cal.cv_after_sigma):
+            print("lpy-light: %-8s cross-validated rms %5.1f %% -> %5.1f ± %.1f %%"
+                  % (b, 100 * before, 100 * after, 100 * sigma), file=sys.stderr)
         if cal.check is not None:
-            for b, before, after in zip(cal.bands, cal.check["rms_before"], cal.check["rms_after"]):
-                print("lpy-light: %-8s held-out rms %5.1f %% -> %5.1f %%" % (b, 100 * before, 100 * after),
-                      file=sys.stderr)
+            for b, before, after, sigma in zip(cal.bands, cal.check["rms_before"], cal.check["rms_after"],
+                                               cal.check["rms_after_sigma"]):
+                print("lpy-light: %-8s held-out rms %5.1f %% -> %5.1f ± %.1f %%"
+                      % (b, 100 * before, 100 * after, 100 * sigma), file=sys.stderr)
         for w in cal.warnings:
             print("lpy-light: warning: " + w, file=sys.stderr)
         print("lpy-light: wrote %s (the fitted scene: lpy-light run %s ...), report.md, calibration.json"

@@ -113,3 +113,21 @@ def test_the_fitted_light_is_more_certain_at_the_sites_than_far_from_them():
     sol = mdl.solve(lay, y[near], X[:, near], J[:, :, near])
     sigma = mdl.predicted_sigma(lay, sol, X, J).mean(axis=1)
     assert np.median(sigma[~near]) > np.median(sigma[near])
+
+
+@pytest.mark.parametrize("row_share", [0.0, 0.5])
+def test_the_rms_standard_error_is_the_spread_of_the_rms_over_surveys(row_share):
+    """Relative errors of 120 sites in 12 rows, each a row's common part (``row_share`` of its variance: residuals
+    correlate along a row) plus the site's own: over 400 made-up surveys, the jackknife σ of the rms (mean) against
+    the rms's actual spread.  A σ that took the sites as independent would be ~0.6x the spread with correlated rows."""
+    rng = np.random.default_rng(7)
+    rows = np.repeat(np.arange(12), 10)
+    rms, sigma = [], []
+    for _ in range(400):
+        common = rng.standard_normal((12, 2))[rows]
+        e = 0.03 * (np.sqrt(row_share) * common + np.sqrt(1 - row_share) * rng.standard_normal((120, 2)))
+        rms.append(np.sqrt(np.mean(e ** 2, axis=0)))
+        sigma.append(mdl.rms_sigma(e, rows))
+    ratio = np.mean(sigma, axis=0) / np.std(rms, axis=0, ddof=1)
+    assert np.all((ratio > 0.8) & (ratio < 1.25)), ratio
+    assert np.all(np.isnan(mdl.rms_sigma(np.ones((5, 2)), np.zeros(5))))

@@ -101,6 +101,8 @@ class Calibration:
     seconds: float
     runs: int
     scene_overrides: dict = field(default_factory=dict)
+    cv_before_sigma: np.ndarray | None = None   # (B,) standard errors of cv_before, cv_after (jackknife over rows)
+    cv_after_sigma: np.ndarray | None = None
 
 
 # --- the runs ------------------------------------------------------------------------------------
@@ -355,8 +357,9 @@ def calibrate(chamber, survey, photons: int = 2_000_000, seed: int = 1, threads=
             ", ".join("%s %.4g" % (p.label, v) for p, v, free in zip(params, sol.phi[lay.theta], sol.free[lay.theta])
                       if free) or "no position or material fitted", runs.runs))
     say("cross-validating: the whole fit again without each of %d rows of sites" % len(np.unique(survey.row)))
-    cv_after = mdl.cross_validated(lay, y, on(Xa, fit_i), J_on(fit_i), survey.row, at)
-    cv_before = mdl.cross_validated_scales(lay, y, on(X0, fit_i), J_on(fit_i), survey.row)
+    cv_errors = mdl.cross_validated_errors(lay, y, on(Xa, fit_i), J_on(fit_i), survey.row, at)
+    cv_errors_before = mdl.cross_validated_scales_errors(lay, y, on(X0, fit_i), J_on(fit_i), survey.row)
+    cv_after, cv_before = (np.sqrt(np.mean(e ** 2, axis=0)) for e in (cv_errors, cv_errors_before))
     # the lamps traced again where the fit put them: the final residuals are a run's, not the linear model's
     theta = sol.phi[lay.theta].copy()
     Xf = runs.densities(*_tables(params, theta))[:, :, measured] * share if (theta != at).any() else Xa
@@ -382,7 +385,11 @@ def calibrate(chamber, survey, photons: int = 2_000_000, seed: int = 1, threads=
         rb, ra = np.full(len(bands), np.nan), np.full(len(bands), np.nan)
         rb[both] = mdl.relative_rms(pb[:, both], yc[:, both])
         ra[both] = mdl.relative_rms(pa[:, both], yc[:, both])
-        held = {"survey": check.path, "held": check, "sites": H, "rms_before": rb, "rms_after": ra, "before": pb, "after": pa}
+        sb, sa = np.full(len(bands), np.nan), np.full(len(bands), np.nan)
+        sb[both] = mdl.rms_sigma((pb[:, both] - yc[:, both]) / yc[:, both], check.row)
+        sa[both] = mdl.rms_sigma((pa[:, both] - yc[:, both]) / yc[:, both], check.row)
+        held = {"survey": check.path, "held": check, "sites": H, "rms_before": rb, "rms_after": ra, "before": pb,
+                "after": pa, "rms_before_sigma": sb, "rms_after_sigma": sa}
         worse = [b for b, r in zip(bands, ra / rb) if r > 1.1]
         if worse:
             warnings.append("at the held-out sites of %s the fitted chamber is more than 1.1 times worse than the "
@@ -398,6 +405,8 @@ def calibrate(chamber, survey, photons: int = 2_000_000, seed: int = 1, threads=
                       mdl.relative_rms(final, y), rms_spectrum, table, factor, factor_sigma, flux,
                       {"sigma": sol.noise.sigma, "rho": sol.noise.rho}, probe_rows, held, warnings, runs.photons,
                       time.perf_counter() - t0, runs.runs)
+    out.cv_before_sigma = mdl.rms_sigma(cv_errors_before, survey.row)
+    out.cv_after_sigma = mdl.rms_sigma(cv_errors, survey.row)
     out.scene_overrides = _scene_tables(chamber, lamps, measured, fitted_outputs, factor, params, theta, flux)
     out.scene_overrides["surveyed"] = _surveyed(survey, probe_rows)
     return out
@@ -483,6 +492,7 @@ def summary(cal: Calibration) -> dict:
         c = cal.check
         check = {"survey": c["survey"], "sites": c["sites"], "rms_before": per_band(c["rms_before"]),
                  "rms_after": per_band(c["rms_after"]), "after_over_before": per_band(c["rms_after"] / c["rms_before"]),
+                 "rms_before_sigma": per_band(c["rms_before_sigma"]), "rms_after_sigma": per_band(c["rms_after_sigma"]),
                  "before": "the chamber as described, one scale per band fitted on the survey (not on these sites)"}
     return {
         "survey": cal.survey.path, "sites": len(cal.survey), "rows": int(cal.survey.row.max() + 1),
@@ -491,8 +501,10 @@ def summary(cal: Calibration) -> dict:
         "rms_relative": {"spectrum_only": per_band(cal.rms_spectrum), "before": per_band(cal.rms_before),
                          "after": per_band(cal.rms_after)},
         "cv_rms_relative": {"before": per_band(cal.cv_before), "after": per_band(cal.cv_after),
+                            "before_sigma": per_band(cal.cv_before_sigma), "after_sigma": per_band(cal.cv_after_sigma),
                             "how": "leave one row of sites out, the whole fit (what is identified included) on the "
-                                   "others; rows: %s" % cal.survey.row_source},
+                                   "others; rows: %s; sigma: the rms's standard error, jackknife over the rows"
+                                   % cal.survey.row_source},
         "check": check,
         "before": "the scene as described, one µmol s-1 scale per band fitted (lamp outputs as the scene has them)",
         "model": "maximum a posteriori, priors centred on the scene as described (lpy_light.calibration.model); "
@@ -519,6 +531,12 @@ def report_text(cal: Calibration, scene_name: str) -> str:
     """report.md: rms per band before and after, cross-validated and on held-out sites; what was fitted and what
     was not, and why; the σ of the fitted light away from the survey."""
     pct = lambda a: "—" if not np.isfinite(a) else "%.1f" % (100 * a)   # noqa: E731
+
+    def pm(values, sigmas):         # "5.3 ± 0.4" (%): an rms and its standard error
+        if sigmas is None:
+            return " | ".join(map(pct, values))
+        return " | ".join(pct(v) if not np.isfinite(e) else "%s ± %.1f" % (pct(v), 100 * e)
+                          for v, e in zip(values, sigmas))
     lines = ["# %s fitted to %s" % (scene_name, cal.survey.path), "",
              "%d sites in %d rows, %d lamps, %d bands; %d runs of %d photons, %.0f s." % (
                  len(cal.survey), cal.survey.row.max() + 1, len(cal.lamps), len(cal.bands), cal.runs, cal.photons,
@@ -528,18 +546,20 @@ def report_text(cal: Calibration, scene_name: str) -> str:
     if cal.rms_spectrum is not None:
         lines.append("| lamp spectrum, nothing fitted | %s |" % " | ".join(map(pct, cal.rms_spectrum)))
     lines += ["| before (one scale per band) | %s |" % " | ".join(map(pct, cal.rms_before)),
-              "| before, cross-validated | %s |" % " | ".join(map(pct, cal.cv_before)),
+              "| before, cross-validated | %s |" % pm(cal.cv_before, cal.cv_before_sigma),
               "| after | %s |" % " | ".join(map(pct, cal.rms_after)),
-              "| after, cross-validated | %s |" % " | ".join(map(pct, cal.cv_after)),
+              "| after, cross-validated | %s |" % pm(cal.cv_after, cal.cv_after_sigma),
               "| after / before, cross-validated | %s |" % " | ".join(
                   "%.2f" % r for r in cal.cv_after / cal.cv_before)]
     if cal.check is not None:
         c = cal.check
-        lines += ["| held out (%d sites), before | %s |" % (c["sites"], " | ".join(map(pct, c["rms_before"]))),
-                  "| held out, after | %s |" % " | ".join(map(pct, c["rms_after"])),
+        lines += ["| held out (%d sites), before | %s |" % (c["sites"], pm(c["rms_before"], c["rms_before_sigma"])),
+                  "| held out, after | %s |" % pm(c["rms_after"], c["rms_after_sigma"]),
                   "| held out, after / before | %s |" % " | ".join(
                       "—" if not np.isfinite(r) else "%.2f" % r for r in c["rms_after"] / c["rms_before"])]
-    lines += ["", "Cross-validated: each row of sites predicted by the whole fit made without it.  The readings' "
+    lines += ["", "Cross-validated: each row of sites predicted by the whole fit made without it; ± its standard "
+              "error (jackknife over the rows: a survey of few rows tells its rms only so well, and another set of "
+              "sites of the same chamber may give an rms that far off).  The readings' "
               "scatter the fit assumed: %s %% per band, correlation %.2f between one site's bands."
               % ("-".join(pct(v) for v in (cal.noise["sigma"].min(), cal.noise["sigma"].max())), cal.noise["rho"]),
               "", "## What was fitted", "",

@@ -388,22 +388,50 @@ def band_only(lay: Layout, y, X0, J, at=None) -> np.ndarray:
     return map_fit(lay, y, X0, J, at, scales, Noise(np.full(lay.B, 0.05), 0.0))[0]
 
 
-def cross_validated(lay: Layout, y, X0, J, rows, at=None) -> np.ndarray:
-    """(B,) the rms of each row's prediction by the whole :func:`solve` on the other rows."""
+def rms_sigma(errors, rows) -> np.ndarray:
+    """(B,) the standard error of the rms over sites of ``errors`` (S, B: relative errors) by the delete-a-row
+    jackknife over ``rows`` (S,): residuals correlate along a row, so a row, not a site, is the independent unit.
+    NaN with fewer than two rows."""
+    e2 = np.asarray(errors, float) ** 2
+    rows = np.asarray(rows)
+    names = np.unique(rows)
+    if len(names) < 2:
+        return np.full(e2.shape[1], np.nan)
+    total, n = e2.sum(axis=0), len(e2)
+    rms = np.array([np.sqrt((total - e2[rows == r].sum(axis=0)) / (n - np.count_nonzero(rows == r)))
+                    for r in names])
+    k = len(names)
+    return np.sqrt((k - 1) / k * ((rms - rms.mean(axis=0)) ** 2).sum(axis=0))
+
+
+def cross_validated_errors(lay: Layout, y, X0, J, rows, at=None) -> np.ndarray:
+    """(S, B) each site's relative error (predicted − y) / y, predicted by the whole :func:`solve` on the other
+    rows."""
     after = np.zeros_like(y)
     for row in np.unique(rows):
         out = rows == row
         sol = solve(lay, y[~out], X0[:, ~out], J[:, :, ~out], at)
         after[out] = predict(lay, sol, X0[:, out], J[:, :, out])
-    return relative_rms(after, y)
+    return (after - y) / y
 
 
-def cross_validated_scales(lay: Layout, y, X0, J, rows) -> np.ndarray:
-    """(B,) the same for the chamber as described (``X0`` at the nominal θ), one scale per band."""
+def cross_validated(lay: Layout, y, X0, J, rows, at=None) -> np.ndarray:
+    """(B,) the rms of each row's prediction by the whole :func:`solve` on the other rows (its σ:
+    :func:`rms_sigma` of :func:`cross_validated_errors`)."""
+    return np.sqrt(np.mean(cross_validated_errors(lay, y, X0, J, rows, at) ** 2, axis=0))
+
+
+def cross_validated_scales_errors(lay: Layout, y, X0, J, rows) -> np.ndarray:
+    """(S, B) the same for the chamber as described (``X0`` at the nominal θ), one scale per band."""
     before = np.zeros_like(y)
     at = lay.mu[lay.theta]
     for row in np.unique(rows):
         out = rows == row
         phi = band_only(lay, y[~out], X0[:, ~out], J[:, :, ~out])
         before[out] = light(lay, phi, X0[:, out], J[:, :, out], at)[0]
-    return relative_rms(before, y)
+    return (before - y) / y
+
+
+def cross_validated_scales(lay: Layout, y, X0, J, rows) -> np.ndarray:
+    """(B,) the rms of :func:`cross_validated_scales_errors`."""
+    return np.sqrt(np.mean(cross_validated_scales_errors(lay, y, X0, J, rows) ** 2, axis=0))
