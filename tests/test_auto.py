@@ -55,13 +55,14 @@ def test_the_field_is_chosen_only_where_it_passed_and_is_cheaper():
         assert set(choice["gain"]) == {"all", "buds", "leaves"} and choice["cpu_s"]["field_per_step"] == 1.1
 
 
-def test_a_plant_lit_by_nee_is_piloted_again_once_it_doubled():
+def test_a_plant_lit_by_nee_is_piloted_again_once_its_organs_or_their_area_doubled():
     chooser = auto.Chooser()
-    assert chooser.current == "field" and not chooser.repilot(1000)       # the first pilot runs
+    assert chooser.current == "field" and not chooser.repilot(1000, 1e9)   # the first pilot runs
     check = _check(passed=False)
     check["gain"] = {}
-    chooser.decide(check, 10, step=0, organs=30)
-    assert chooser.current == "nee" and not chooser.repilot(59) and chooser.repilot(60)
+    chooser.decide(check, 10, step=0, organs=30, area=1.0)
+    assert chooser.current == "nee" and not chooser.repilot(59, 1.9) and chooser.repilot(60, 1.0)
+    assert chooser.repilot(30, 2.0)                 # as many organs, twice their area: leaves that grew
 
 
 @pytest.fixture(scope="module")

@@ -15,8 +15,8 @@ estimators, and the CPU seconds of both.  :func:`choose` then keeps
   as 1/its cost, so the gain holds at any precision.
 
 The choice is made again at each field's self-check (a field kept is renewed every ``renew`` steps, and each is
-checked), and a plant lit by ``nee`` is piloted again once it has :data:`REPILOT` times the organs it had at the
-last pilot: a seedling's few organs do not choose for the grown plant, and a growth run pays for a handful of
+checked), and a plant lit by ``nee`` is piloted again once it has :data:`REPILOT` times the organs, or the organs'
+area, it had at the last pilot: a seedling's few small organs do not choose for the grown plant, and a growth run pays for a handful of
 pilots (each a field traced and checked).  Each choice is written in its step's ``extra["auto"]`` and
 ``summary.json``'s ``auto``: which, why, the gain over all read organs and per kind, with the σ and CPU seconds behind it.  Each
 estimator keeps its own settings (``photons`` per step for ``nee``, the field's ``rays``) and, with a
@@ -30,7 +30,7 @@ import numpy as np
 
 #: the name that asks for the choice (not a registered estimator: it picks one of ``field`` and ``nee``)
 AUTO = "auto"
-#: a plant lit by ``nee`` is piloted again once it has this many times the organs it had at the last pilot
+#: a plant lit by ``nee`` is piloted again once it has this many times the organs (or their area) of the last pilot
 REPILOT = 2.0
 #: the seeds of successive pilots' fields: the model's seed + this × the pilots before
 PILOT_SEED = 104_729
@@ -44,21 +44,24 @@ class Chooser:
         self.field = field
         self.choices: list = []
         self.organs_at_pilot = 0
+        self.area_at_pilot = 0.0
 
     @property
     def current(self) -> str:
         """The estimator now chosen (``field`` while the first pilot runs)."""
         return self.choices[-1]["estimator"] if self.choices else "field"
 
-    def repilot(self, organs: int) -> bool:
-        """Whether a plant of ``organs`` lit by ``nee`` is to be piloted again (it grew :data:`REPILOT` times)."""
-        return self.current == "nee" and organs >= REPILOT * max(self.organs_at_pilot, 1)
+    def repilot(self, organs: int, area: float) -> bool:
+        """Whether a plant of ``organs`` and ``area`` (its organs' area, any unit) lit by ``nee`` is to be piloted
+        again: it has :data:`REPILOT` times the organs or the area it had at the last pilot."""
+        return self.current == "nee" and (organs >= REPILOT * max(self.organs_at_pilot, 1)
+                                          or area >= REPILOT * self.area_at_pilot > 0)
 
-    def decide(self, check: dict, renew: int, step: int, organs: int) -> dict:
-        """:func:`choose` on a field's self-check at ``step`` (``organs`` lit), recorded."""
+    def decide(self, check: dict, renew: int, step: int, organs: int, area: float = 0.0) -> dict:
+        """:func:`choose` on a field's self-check at ``step`` (``organs`` lit, of ``area``), recorded."""
         choice = dict(choose(check, renew), at_step=int(step), organs_lit=int(organs))
         self.choices.append(choice)
-        self.organs_at_pilot = organs
+        self.organs_at_pilot, self.area_at_pilot = organs, float(area)
         return choice
 
 

@@ -113,6 +113,11 @@ class LightModel:
         unused (:mod:`lpy_light.estimators.reuse`; every organ is a target; ``docs/performance.md`` says when to use
         which). ``"field"``: the light entering the plant's region is traced once into a field; each step's rays stay in
         the region and read it where they leave (:mod:`lpy_light.estimators.field`; every organ is a target).
+        ``"auto"``: the first step traces a field and checks it against ``nee`` (the field's self-check), and that
+        check chooses: the field where it passed and brings the read organs' 90th-percentile σ to a given value
+        for less CPU (its tracing and check counted), else ``nee``; chosen again at each field's check, and a
+        plant lit by ``nee`` piloted again once it has doubled (:mod:`lpy_light.plant.auto`; ``self.auto.choices``,
+        ``summary.json``'s ``auto``).
     lamp_flux : (B,) or None
         Unit: µmol s⁻¹, one value per band (or one for every band).
         µmol s⁻¹ emitted per band; default: from the scene's lamp spectrum, by a
@@ -420,7 +425,7 @@ class LightModel:
                 step.extra[key] = result.extra[key]
         verifying.after_step(self, step, result, organs, read, checks)     # field_check, lit_by, verify
         if self.auto is not None and "field_check" in step.extra:
-            self._choose(step, len(organs))
+            self._choose(step, organs)
         compiled = getattr(self.kscene, "compile_seconds", 0.0) - compiled
         if compiled > 0:              # the kernel compiled for these organs (first run only), within the step's time
             step.extra["compile_seconds"] = compiled
@@ -444,19 +449,21 @@ class LightModel:
         if self.auto is not None and self.keeper.settings.check_photons <= 0:
             raise InputError("estimator auto chooses from the field's self-check: field check_photons must be > 0")
 
-    def _choose(self, step, organs: int):
+    def _choose(self, step, organs):
         """``estimator="auto"``: a choice from the field's self-check of this step (:class:`lpy_light.plant.auto.
         Chooser`), in the step's ``extra["auto"]``; ``nee`` chosen, the next steps are ``nee``'s."""
-        choice = self.auto.decide(step.extra["field_check"], self.keeper.settings.renew, step.step, organs)
+        choice = self.auto.decide(step.extra["field_check"], self.keeper.settings.renew, step.step, len(organs),
+                                  sum(o.area for o in organs))
         step.extra["auto"] = choice
         logging.getLogger("lpy_light").info("estimator auto: %s (%s)", choice["estimator"], choice["why"])
         if choice["estimator"] == "nee":
             self.estimator, self.keeper = "nee", None
 
     def _pilot_again(self, organs):
-        """``estimator="auto"`` on ``nee``: the plant grew :data:`lpy_light.plant.auto.REPILOT` times since the last
-        pilot, so this step traces a field and checks it again (:meth:`_choose` decides after it)."""
-        if self.auto is not None and self.auto.repilot(len(organs)):
+        """``estimator="auto"`` on ``nee``: the plant grew :data:`lpy_light.plant.auto.REPILOT` times (its organs or
+        their area) since the last pilot, so this step traces a field and checks it again (:meth:`_choose` decides
+        after it)."""
+        if self.auto is not None and self.auto.repilot(len(organs), sum(o.area for o in organs)):
             self.estimator = "field"
             self.keeper = _keeper("field", None, self.auto.field, self.seed + PILOT_SEED * len(self.auto.choices))
 
