@@ -116,8 +116,8 @@ class LightModel:
         ``"auto"``: the first step traces a field and checks it against ``nee`` (the field's self-check), and that
         check chooses: the field where it passed and brings the read organs' 90th-percentile σ to a given value
         for less CPU (its tracing and check counted), else ``nee``; chosen again at each field's check, and a
-        plant lit by ``nee`` piloted again once it has doubled (:mod:`lpy_light.plant.auto`; ``self.auto.choices``,
-        ``summary.json``'s ``auto``).
+        plant lit by ``nee`` piloted again once its organs or their area doubled (:mod:`lpy_light.plant.auto`;
+        ``self.auto.choices``, ``summary.json``'s ``auto``).
     lamp_flux : (B,) or None
         Unit: µmol s⁻¹, one value per band (or one for every band).
         µmol s⁻¹ emitted per band; default: from the scene's lamp spectrum, by a
