@@ -5,6 +5,7 @@ then the choice in a :class:`LightModel` on ``test_field``'s room and plant (a l
 a choice is lit by the chosen estimator, a field that fails its check is never chosen, and a plant lit by ``nee``
 is piloted again once it has grown."""
 import dataclasses
+import math
 
 import numpy as np
 import pytest
@@ -18,8 +19,13 @@ from test_reuse import GREEN, ROOM, THIN, _plant
 from test_verify import CHECKED
 
 
-def _rows(field_sigma, nee_sigma, kind="buds", value=10.0):
-    return [{"kind": kind, "estimate_std": f, "nee_std": n, "nee": value} for f, n in zip(field_sigma, nee_sigma)]
+def _rows(field_sigma, nee_sigma, kind="buds", value=10.0, field_rfr=None, nee_rfr=None, rfr=1.0):
+    """Rows of verify.compare: PAR σ of each run; R:FR σ where given (else NaN: not reported)."""
+    n = len(field_sigma)
+    field_rfr = [math.nan] * n if field_rfr is None else field_rfr
+    nee_rfr = [math.nan] * n if nee_rfr is None else nee_rfr
+    return [{"kind": kind, "estimate_std": f, "nee_std": s, "nee": value, "rfr_std": fr, "nee_rfr_std": nr,
+             "nee_rfr": rfr} for f, s, fr, nr in zip(field_sigma, nee_sigma, field_rfr, nee_rfr)]
 
 
 def _check(passed=True, nee_cpu=2.0, step_cpu=0.5, field_cpu=4.0, check_cpu=2.0):
@@ -33,12 +39,12 @@ def test_the_gain_is_the_ratio_of_cost_times_variance_at_the_90th_percentile():
     percentile, not the mean, sets it: one organ the field serves 10x worse moves it by under 10 % (a mean: 5x)."""
     nee = np.linspace(1.0, 2.0, 20)
     check = _check(nee_cpu=2.2)
-    gain = auto.gains_of(_rows(nee / 2, nee), check, renew=10)
+    gain = auto.gains_of(_rows(nee / 2, nee), check, renew=10)["par"]
     assert gain["all"]["gain"] == pytest.approx(8.0, rel=1e-3) and gain["all"]["organs"] == 20
     assert gain["buds"] == gain["all"]
     worse = nee / 2
     worse[3] = 10 * nee[3]
-    assert auto.gains_of(_rows(worse, nee), check, renew=10)["all"]["gain"] == pytest.approx(8.0, rel=0.1)
+    assert auto.gains_of(_rows(worse, nee), check, renew=10)["par"]["all"]["gain"] == pytest.approx(8.0, rel=0.1)
     assert auto.field_cost(check, renew=10) == pytest.approx(1.1)
     # organs without a σ in either run are left out
     assert auto.gains_of(_rows([0.0, np.nan], [1.0, 1.0]), check, renew=10) == {}
@@ -52,7 +58,27 @@ def test_the_field_is_chosen_only_where_it_passed_and_is_cheaper():
         choice = auto.choose(check, 10)
         assert choice["estimator"] == chosen, choice
         assert ("failed its self-check" in choice["why"]) == (not passed)
-        assert set(choice["gain"]) == {"all", "buds", "leaves"} and choice["cpu_s"]["field_per_step"] == 1.1
+        assert set(choice["per_quantity"]["par"]) == {"all", "buds", "leaves"}
+        assert choice["cpu_s"]["field_per_step"] == 1.1 and choice["goal"] == {"par": 1.0}
+
+
+def test_the_precision_asked_weighs_par_against_rfr():
+    """The field 2x as precise on PAR (gain 4 / 1.1 CPU s against 2: 7.3) and 4x less on R:FR (gain 1/16 · 1.8):
+    PAR alone asked, the field; R:FR asked too at the σ where it binds, ``nee``.  The cost is the largest over the
+    quantities asked: with R:FR asked loosely (0.5 absolute against PAR's 0.03 relative, R:FR's σ ~0.1) PAR binds
+    both and the field is kept."""
+    nee = np.linspace(0.01, 0.02, 20)
+    rows = _rows(nee * 10 / 2, nee * 10, value=10.0, field_rfr=4 * nee * 5, nee_rfr=nee * 5)
+    check = _check()
+    check["gain"] = auto.gains_of(rows, check, 10)
+    assert check["gain"]["par"]["all"]["gain"] == pytest.approx(4 * 2.0 / 1.1, rel=1e-3)
+    assert check["gain"]["rfr"]["all"]["gain"] == pytest.approx(2.0 / 1.1 / 16, rel=1e-3)
+    both = {"par": (0.03, True), "rfr": (0.02, False)}
+    assert auto.choose(check, 10)["estimator"] == "field"
+    assert auto.choose(check, 10, both)["estimator"] == "nee"
+    assert auto.choose(check, 10, {"par": (0.03, True), "rfr": (0.5, False)})["estimator"] == "field"
+    # a precision given as one number asks R:FR's relative σ
+    assert auto.asked({"par": (0.04, True), "rfr": (0.04, True)}) == {"par": 0.04, "rfr_relative": 0.04}
 
 
 def test_a_plant_lit_by_nee_is_piloted_again_once_its_organs_or_their_area_doubled():
@@ -86,7 +112,7 @@ def test_the_step_after_the_choice_is_lit_by_the_chosen_estimator(room, monkeypa
     choice = first.extra["auto"]
     assert first.extra["field_check"]["passed"] and first.extra["lit_by"] == "field"
     assert choice["estimator"] == chosen and choice["at_step"] == 0 and choice["organs_lit"] == 26
-    assert choice["gain"]["all"]["organs"] >= 20 and choice["cpu_s"]["nee_check_photons"] == CHECKED.check_photons
+    assert {"all", "buds", "leaves"} <= set(choice["per_quantity"]["par"]) and choice["cpu_s"]["nee_check_photons"] == CHECKED.check_photons
     second = model.run(organs)
     assert model.estimator == chosen and second.extra.get("lit_by", "nee") == chosen
     assert "auto" not in second.extra and model.auto.choices == [choice]

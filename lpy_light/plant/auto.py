@@ -6,21 +6,23 @@ field is (:func:`lpy_light.plant.verify.field_self_check`: the same plant lit by
 estimators, and the CPU seconds of both.  :func:`choose` then keeps
 
 * ``nee``, where the field failed its self-check (its bias, not its cost, decides);
-* else the estimator that brings the organs read to a given σ for less CPU.  A precision asked of every read
-  organ is reached when the hardest organs reach it, so each estimator's cost is its CPU seconds times the
-  90th percentile (:data:`QUANTILE`) of the organs' relative variance (PAR, else ppfd summed over the bands),
-  and the field is kept where ``gain = (cpu_nee · q(σ_nee²)) / (cpu_field · q(σ_field²)) ≥ 1``:
-  ``cpu_nee`` is the check's ``nee`` run, ``cpu_field`` the field's step plus its share of what each field
-  costs once (its tracing and its check, spread over the ``renew`` steps it lights).  A run's variance falls
-  as 1/its cost, so the gain holds at any precision.
+* else the estimator that reaches the precision asked for less CPU.  A precision asked of every read organ is
+  reached when the hardest organs reach it, so an estimator's cost is its CPU seconds times the largest, over
+  the quantities asked, of the organs' 90th-percentile (:data:`QUANTILE`) variance over the σ asked squared:
+  PAR's relative variance, and R:FR's (absolute, or relative for a precision given as one number) where the
+  model's ``precision`` asks for R:FR; PAR alone without a goal (:func:`asked`).  ``cpu_nee`` is the check's
+  ``nee`` run, ``cpu_field`` the field's step plus its share of what each field costs once (its tracing and
+  its check, spread over the ``renew`` steps it lights).  A run's variance falls as 1/its cost, so the ratio,
+  the field's gain, holds at any precision; the field is kept where it is ≥ 1.
 
 The choice is made again at each field's self-check (a field kept is renewed every ``renew`` steps, and each is
 checked), and a plant lit by ``nee`` is piloted again once it has :data:`REPILOT` times the organs, or the organs'
-area, it had at the last pilot: a seedling's few small organs do not choose for the grown plant, and a growth run pays for a handful of
-pilots (each a field traced and checked).  Each choice is written in its step's ``extra["auto"]`` and
-``summary.json``'s ``auto``: which, why, the gain over all read organs and per kind, with the σ and CPU seconds behind it.  Each
-estimator keeps its own settings (``photons`` per step for ``nee``, the field's ``rays``) and, with a
-``precision`` goal, stops where the goal is reached.  A field that fails its check lights nothing.
+area, it had at the last pilot: a seedling's few small organs do not choose for the grown plant, and a growth
+run pays for a handful of pilots (each a field traced and checked).  Each choice is written in its step's
+``extra["auto"]`` and ``summary.json``'s ``auto``: which, why, the gain, and per quantity and kind of organ, with
+the CPU seconds behind it.  Each estimator keeps its own settings (``photons`` per step for ``nee``, the field's
+``rays``) and, with a ``precision`` goal, stops where the goal is reached.  A field that fails its check lights
+nothing.
 """
 from __future__ import annotations
 
@@ -57,30 +59,45 @@ class Chooser:
         return self.current == "nee" and (organs >= REPILOT * max(self.organs_at_pilot, 1)
                                           or area >= REPILOT * self.area_at_pilot > 0)
 
-    def decide(self, check: dict, renew: int, step: int, organs: int, area: float = 0.0) -> dict:
-        """:func:`choose` on a field's self-check at ``step`` (``organs`` lit, of ``area``), recorded."""
-        choice = dict(choose(check, renew), at_step=int(step), organs_lit=int(organs))
+    def decide(self, check: dict, renew: int, step: int, organs: int, area: float = 0.0, goal=None) -> dict:
+        """:func:`choose` on a field's self-check at ``step`` (``organs`` lit, of ``area``; the model's precision
+        ``goal``), recorded."""
+        choice = dict(choose(check, renew, goal), at_step=int(step), organs_lit=int(organs))
         self.choices.append(choice)
         self.organs_at_pilot, self.area_at_pilot = organs, float(area)
         return choice
 
 
-#: the organs' quantile of relative variance that sets an estimator's cost to a precision (the hardest organs)
+#: the organs' quantile of variance that sets an estimator's cost to a precision (the hardest organs)
 QUANTILE = 90
+#: what a choice weighs without a precision goal: PAR's relative σ (a goal's quantities where it has one)
+NO_GOAL = {"par": (1.0, True)}
 
 
-def relative_variances(rows) -> dict:
-    """{kind: (organs, 2)}: each organ's (σ_field / nee)², (σ_nee / nee)² from
-    :func:`lpy_light.plant.verify.compare`'s ``rows`` (PAR, else ppfd summed over the bands; organs whose σ is
-    not finite and > 0 in both runs, or whose ``nee`` light is not > 0, are left out); ``"all"`` every kind."""
+def _finite(*values) -> bool:
+    return all(math.isfinite(v) and v > 0 for v in values)
+
+
+def variances(rows) -> dict:
+    """{quantity: {kind: (organs, 2)}}: each organ's variance in the field's step and in ``nee``'s check run, from
+    :func:`lpy_light.plant.verify.compare`'s ``rows``: ``par`` relative, (σ / nee's PAR)² (PAR, else ppfd summed
+    over the bands); ``rfr`` absolute, σ² of R:FR; ``rfr_relative``, (σ / nee's R:FR)².  Organs whose σ is not
+    finite and > 0 in both runs are left out of that quantity; ``"all"``: every kind."""
     out: dict = {}
+
+    def add(quantity, kind, pair):
+        for k in ("all", kind):
+            out.setdefault(quantity, {}).setdefault(k, []).append(pair)
+
     for row in rows:
-        sf, sn, y = row["estimate_std"], row["nee_std"], row["nee"]
-        if not all(math.isfinite(v) and v > 0 for v in (sf, sn, y)):
-            continue
-        for kind in ("all", row["kind"]):
-            out.setdefault(kind, []).append(((sf / y) ** 2, (sn / y) ** 2))
-    return {kind: np.asarray(v, float) for kind, v in out.items()}
+        y, sf, sn = row["nee"], row["estimate_std"], row["nee_std"]
+        if _finite(y, sf, sn):
+            add("par", row["kind"], ((sf / y) ** 2, (sn / y) ** 2))
+        r, rf, rn = row["nee_rfr"], row["rfr_std"], row["nee_rfr_std"]
+        if _finite(r, rf, rn):
+            add("rfr", row["kind"], (rf ** 2, rn ** 2))
+            add("rfr_relative", row["kind"], ((rf / r) ** 2, (rn / r) ** 2))
+    return {q: {k: np.asarray(v, float) for k, v in kinds.items()} for q, kinds in out.items()}
 
 
 def field_cost(check: dict, renew: int) -> float:
@@ -91,38 +108,61 @@ def field_cost(check: dict, renew: int) -> float:
 
 
 def gains_of(rows, check: dict, renew: int) -> dict:
-    """{kind: {"gain", "organs", "field_sigma", "nee_sigma"}}: how many times cheaper the field brings the
-    :data:`QUANTILE` th percentile of the organs' relative σ to a given value than ``nee`` does, over all read
-    organs (``"all"``) and per kind; the two σ are those percentiles (the field's step, ``nee`` at the check's
-    photons).  A run's variance falls as 1/its cost: gain = (cpu_nee · q(σ_nee²)) / (cpu_field · q(σ_field²)),
-    ``cpu_field`` :func:`field_cost`."""
+    """{quantity: {kind: {"gain", "organs", "field_var", "nee_var"}}} (quantities of :func:`variances`): the
+    :data:`QUANTILE` th percentile of the organs' variance in the field's step and in ``nee``'s check run, and how
+    many times cheaper the field brings it to a given value: (cpu_nee · q(var_nee)) / (cpu_field · q(var_field)),
+    ``cpu_field`` :func:`field_cost` (a run's variance falls as 1/its cost)."""
     cpu_field = field_cost(check, renew)
-    out = {}
-    for kind, v in relative_variances(rows).items():
-        qf, qn = np.percentile(v, QUANTILE, axis=0)
-        out[kind] = {"gain": round(float(qn * check["nee_cpu_s"] / (qf * cpu_field)), 4), "organs": int(len(v)),
-                     "field_sigma": round(float(np.sqrt(qf)), 5), "nee_sigma": round(float(np.sqrt(qn)), 5)}
+    out: dict = {}
+    for quantity, kinds in variances(rows).items():
+        for kind, v in kinds.items():
+            qf, qn = np.percentile(v, QUANTILE, axis=0)
+            out.setdefault(quantity, {})[kind] = {
+                "gain": round(float(qn * check["nee_cpu_s"] / (qf * cpu_field)), 4), "organs": int(len(v)),
+                "field_var": float(qf), "nee_var": float(qn)}
     return out
 
 
-def choose(check: dict, renew: int) -> dict:
+def asked(goal) -> dict:
+    """{quantity of :func:`variances`: σ asked} from a precision goal (:class:`lpy_light.plant.precision.Goal`,
+    ``{quantity: (σ, relative)}``; None: :data:`NO_GOAL`): PAR and R:FR (a band's ppfd is weighed as PAR)."""
+    terms = {}
+    for quantity, (sigma, relative) in (goal or NO_GOAL).items():
+        if quantity == "rfr":
+            terms["rfr_relative" if relative else "rfr"] = float(sigma)
+        else:
+            terms["par"] = min(float(sigma), terms.get("par", math.inf))
+    return terms
+
+
+def choose(check: dict, renew: int, goal=None) -> dict:
     """The choice from a field's self-check (:func:`lpy_light.plant.verify.field_self_check`'s verdict, with its
-    ``gain``: :func:`gains_of`): ``{"asked": "auto", "estimator": "field" | "nee", "why": text, "gain": {kind:
-    gain}, "cpu_s": {...}}``.  The field where it passed its check and its gain over all read organs is ≥ 1."""
-    gain = check.get("gain") or {}
-    decision = {"asked": AUTO, "gain": gain,
+    ``gain``: :func:`gains_of`) for a precision ``goal`` (None: PAR): ``{"asked": "auto", "estimator": "field" |
+    "nee", "why": text, "gain": the field's over all read organs, "per_quantity": {quantity: {kind: gain}},
+    "cpu_s": {...}}``.  Each estimator's cost to the goal is its CPU s times the largest, over the quantities
+    asked, of the organs' 90th-percentile variance over the σ asked squared; the field where it passed its check
+    and costs no more than ``nee``."""
+    stats = check.get("gain") or {}
+    terms = {q: g for q, g in asked(goal).items() if "all" in stats.get(q, {})}
+    cpu_field = field_cost(check, renew)
+    decision = {"asked": AUTO, "goal": asked(goal),
+                "per_quantity": {q: {k: v["gain"] for k, v in kinds.items()} for q, kinds in stats.items()},
                 "cpu_s": {"nee_check": check["nee_cpu_s"], "nee_check_photons": check["photons"],
                           "field_step": check["step_cpu_s"], "field_trace": check["field_cpu_s"],
-                          "field_check": check["cpu_s"], "field_per_step": round(field_cost(check, renew), 3),
-                          "renew": renew}}
+                          "field_check": check["cpu_s"], "field_per_step": round(cpu_field, 3), "renew": renew}}
     if not check.get("passed"):
-        return dict(decision, estimator="nee", why="the field failed its self-check against nee: its bias decides")
-    if "all" not in gain:
-        return dict(decision, estimator="nee", why="no organ both estimators gave a σ for: nee, unbiased")
-    text = "%.2fx over the %d read organs (%s)" % (gain["all"]["gain"], gain["all"]["organs"], ", ".join(
-        "%s %.2fx" % (k, gain[k]["gain"]) for k in sorted(gain) if k != "all"))
-    if gain["all"]["gain"] < 1.0:
-        return dict(decision, estimator="nee", why="nee is cheaper to a given σ on the organs' %dth percentile: the "
-                    "field's gain %s" % (QUANTILE, text))
-    return dict(decision, estimator="field", why="the field passed its self-check and is cheaper to a given σ on the "
-                "organs' %dth percentile: its gain %s" % (QUANTILE, text))
+        return dict(decision, estimator="nee", gain=None,
+                    why="the field failed its self-check against nee: its bias decides")
+    if not terms:
+        return dict(decision, estimator="nee", gain=None, why="no organ both estimators gave a σ for: nee, unbiased")
+    cost_nee = check["nee_cpu_s"] * max(stats[q]["all"]["nee_var"] / g ** 2 for q, g in terms.items())
+    cost_field = cpu_field * max(stats[q]["all"]["field_var"] / g ** 2 for q, g in terms.items())
+    gain = cost_nee / cost_field
+    text = "%.2fx on %s over the read organs (%s)" % (gain, " and ".join(terms), "; ".join(
+        "%s: %s" % (q, ", ".join("%s %.2fx" % (k, stats[q][k]["gain"]) for k in sorted(stats[q]) if k != "all"))
+        for q in terms))
+    if gain < 1.0:
+        return dict(decision, estimator="nee", gain=round(gain, 4), why="nee is cheaper to the precision asked at the "
+                    "organs' %dth percentile: the field's gain %s" % (QUANTILE, text))
+    return dict(decision, estimator="field", gain=round(gain, 4), why="the field passed its self-check and is "
+                "cheaper to the precision asked at the organs' %dth percentile: its gain %s" % (QUANTILE, text))

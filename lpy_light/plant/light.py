@@ -453,7 +453,7 @@ class LightModel:
         """``estimator="auto"``: a choice from the field's self-check of this step (:class:`lpy_light.plant.auto.
         Chooser`), in the step's ``extra["auto"]``; ``nee`` chosen, the next steps are ``nee``'s."""
         choice = self.auto.decide(step.extra["field_check"], self.keeper.settings.renew, step.step, len(organs),
-                                  sum(o.area for o in organs))
+                                  sum(o.area for o in organs), self.goal)
         step.extra["auto"] = choice
         logging.getLogger("lpy_light").info("estimator auto: %s (%s)", choice["estimator"], choice["why"])
         if choice["estimator"] == "nee":
