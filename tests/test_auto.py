@@ -81,6 +81,29 @@ def test_the_precision_asked_weighs_par_against_rfr():
     assert auto.asked({"par": (0.04, True), "rfr": (0.04, True)}) == {"par": 0.04, "rfr_relative": 0.04}
 
 
+def test_auto_takes_a_field_only_where_its_check_bounds_the_bias_tightly():
+    """A check that passed (its own bound max(4σ, 3 %)) with the leaves 4.0 ± 1.6 % low, as on chambre2's other
+    upper bench: auto's bound is max(2σ, 1 %) = 3.2 %, so ``nee``, however cheap the field; −0.2 ± 0.8 % (Angers)
+    passes.  R:FR −0.03 ± 0.01 on the buds (bound 0.02) is refused too, and so is a pooled check's doubt."""
+    nee = np.linspace(1.0, 2.0, 20)
+
+    def verdict(leaves=(-0.002, 0.008), buds_rfr=(-0.002, 0.01), pooled=None):
+        check = _check()
+        check["gain"] = auto.gains_of(_rows(nee / 4, nee), check, 10)
+        check.update(leaves={"organs": 20, "par": {"bias": leaves[0], "sigma": leaves[1]}},
+                     buds={"organs": 20, "par": {"bias": 0.0, "sigma": 0.01},
+                           "rfr": {"bias": buds_rfr[0], "sigma": buds_rfr[1]}},
+                     pooled=pooled or {"leaves": {"organs": 40, "par": {"bias": 0.0, "sigma": 0.005}}})
+        return auto.choose(check, 10)
+
+    assert verdict()["estimator"] == "field"
+    low = verdict(leaves=(-0.040, 0.016))
+    assert low["estimator"] == "nee" and "leaves PAR -4 ± 1.6 % (bound 3.2 %)" in low["why"], low["why"]
+    assert verdict(buds_rfr=(-0.03, 0.01))["estimator"] == "nee"
+    pooled = verdict(pooled={"leaves": {"organs": 40, "par": {"bias": -0.02, "sigma": 0.005}}})
+    assert pooled["estimator"] == "nee" and "pooled leaves" in pooled["why"]
+
+
 def test_a_plant_lit_by_nee_is_piloted_again_once_its_organs_or_their_area_doubled():
     chooser = auto.Chooser()
     assert chooser.current == "field" and not chooser.repilot(1000, 1e9)   # the first pilot runs
@@ -103,9 +126,11 @@ def _model(scene, field=CHECKED):
 
 @pytest.mark.parametrize("cost, chosen", [(1e-6, "field"), (1e6, "nee")])
 def test_the_step_after_the_choice_is_lit_by_the_chosen_estimator(room, monkeypatch, cost, chosen):
-    """The field's cost made negligible or prohibitive: the first step (lit by the field, which passed its check)
-    chooses, the second is lit by the chosen estimator, and the choice carries the check's figures."""
+    """The field's cost made negligible or prohibitive (and auto's stricter bound off): the first step (lit by the
+    field, which passed its check) chooses, the second is lit by the chosen estimator, and the choice carries the
+    check's figures."""
     monkeypatch.setattr(auto, "field_cost", lambda check, renew: cost)
+    monkeypatch.setattr(auto, "doubts", lambda check: [])     # the stricter bound: its own test, above
     model = _model(room)
     organs = model.organs_from_meshes(_plant())
     first = model.run(organs)

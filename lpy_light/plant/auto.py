@@ -5,7 +5,9 @@ field is (:func:`lpy_light.plant.verify.field_self_check`: the same plant lit by
 ``check_photons``), and that check holds all a choice needs, at no extra cost: each read organ's σ from both
 estimators, and the CPU seconds of both.  :func:`choose` then keeps
 
-* ``nee``, where the field failed its self-check (its bias, not its cost, decides);
+* ``nee``, where the field failed its self-check, or passed it but not auto's stricter bound (:func:`doubts`:
+  each kind's bias within max(2σ, 1 % on leaves' PAR, 2 % on buds', 0.01 on R:FR)): its bias, not its cost,
+  decides, and a field wrongly refused costs CPU where one wrongly taken costs its bias;
 * else the estimator that reaches the precision asked for less CPU.  A precision asked of every read organ is
   reached when the hardest organs reach it, so an estimator's cost is its CPU seconds times the largest, over
   the quantities asked, of the organs' 90th-percentile (:data:`QUANTILE`) variance over the σ asked squared:
@@ -72,6 +74,13 @@ class Chooser:
 QUANTILE = 90
 #: what a choice weighs without a precision goal: PAR's relative σ (a goal's quantities where it has one)
 NO_GOAL = {"par": (1.0, True)}
+#: auto lights a run by a field only where its check bounds each kind's bias within max(STRICT_SIGMAS σ, the
+#: accuracy asked of a field: STRICT_TOLERANCE on PAR, relative; STRICT_RFR on R:FR) -- stricter than the
+#: check's own max(4σ, 3-5 %): a field wrongly refused costs CPU, one wrongly taken costs its bias
+STRICT_SIGMAS = 2.0
+STRICT_TOLERANCE = {"leaves": 0.01, "buds": 0.02}
+STRICT_TOLERANCE_OTHER = 0.02
+STRICT_RFR = 0.01
 
 
 def _finite(*values) -> bool:
@@ -135,6 +144,29 @@ def asked(goal) -> dict:
     return terms
 
 
+def doubts(check: dict) -> list:
+    """What of a field's self-check (:meth:`lpy_light.plant.verify.Totals.summary`, and its ``pooled`` one) lies
+    beyond auto's stricter bound (:data:`STRICT_SIGMAS`, :data:`STRICT_TOLERANCE`, :data:`STRICT_RFR`): one text
+    per kind and quantity ("leaves PAR -4.0 ± 1.6 % (bound 3.2 %)"); empty where auto may take the field."""
+    out = []
+    for which, verdict in (("", check), ("pooled ", check.get("pooled") or {})):
+        for kind, entry in verdict.items():
+            if kind == "all" or not isinstance(entry, dict) or "organs" not in entry:
+                continue
+            for quantity, e in entry.items():
+                if not isinstance(e, dict) or "bias" not in e:
+                    continue
+                rfr = quantity == "rfr"
+                tol = STRICT_RFR if rfr else STRICT_TOLERANCE.get(kind, STRICT_TOLERANCE_OTHER)
+                limit = max(STRICT_SIGMAS * e["sigma"], tol) if math.isfinite(e["sigma"]) else tol
+                if not abs(e["bias"]) <= limit:
+                    scale, unit = (1.0, "") if rfr else (100.0, " %")
+                    out.append("%s%s %s %+.3g ± %.2g%s (bound %.2g%s)" % (
+                        which, kind, "R:FR" if rfr else quantity.upper(), scale * e["bias"], scale * e["sigma"],
+                        unit, scale * limit, unit))
+    return out
+
+
 def choose(check: dict, renew: int, goal=None) -> dict:
     """The choice from a field's self-check (:func:`lpy_light.plant.verify.field_self_check`'s verdict, with its
     ``gain``: :func:`gains_of`) for a precision ``goal`` (None: PAR): ``{"asked": "auto", "estimator": "field" |
@@ -153,6 +185,12 @@ def choose(check: dict, renew: int, goal=None) -> dict:
     if not check.get("passed"):
         return dict(decision, estimator="nee", gain=None,
                     why="the field failed its self-check against nee: its bias decides")
+    doubt = doubts(check)
+    if doubt:
+        return dict(decision, estimator="nee", gain=None, why="the field passed its self-check but not auto's "
+                    "stricter bound, max(%g σ, %g %% leaves, %g %% buds, %g on R:FR): %s" % (
+                        STRICT_SIGMAS, 100 * STRICT_TOLERANCE["leaves"], 100 * STRICT_TOLERANCE["buds"], STRICT_RFR,
+                        "; ".join(doubt)))
     if not terms:
         return dict(decision, estimator="nee", gain=None, why="no organ both estimators gave a σ for: nee, unbiased")
     cost_nee = check["nee_cpu_s"] * max(stats[q]["all"]["nee_var"] / g ** 2 for q, g in terms.items())
