@@ -38,6 +38,17 @@ AUTO = "auto"
 REPILOT = 2.0
 #: the seeds of successive pilots' fields: the model's seed + this × the pilots before
 PILOT_SEED = 104_729
+#: the organs' quantile of variance that sets an estimator's cost to a precision (the hardest organs)
+QUANTILE = 90
+#: what a choice weighs without a precision goal: PAR's relative σ (a goal's quantities where it has one)
+NO_GOAL = {"par": (1.0, True)}
+#: auto lights a run by a field only where its check bounds each kind's bias within max(STRICT_SIGMAS σ, the
+#: accuracy asked of a field: STRICT_TOLERANCE on PAR, relative; STRICT_RFR on R:FR) -- stricter than the
+#: check's own max(4σ, 3-5 %): a field wrongly refused costs CPU, one wrongly taken costs its bias
+STRICT_SIGMAS = 2.0
+STRICT_TOLERANCE = {"leaves": 0.01, "buds": 0.02}
+STRICT_TOLERANCE_OTHER = 0.02
+STRICT_RFR = 0.01
 
 
 class Chooser:
@@ -68,19 +79,6 @@ class Chooser:
         self.choices.append(choice)
         self.organs_at_pilot, self.area_at_pilot = organs, float(area)
         return choice
-
-
-#: the organs' quantile of variance that sets an estimator's cost to a precision (the hardest organs)
-QUANTILE = 90
-#: what a choice weighs without a precision goal: PAR's relative σ (a goal's quantities where it has one)
-NO_GOAL = {"par": (1.0, True)}
-#: auto lights a run by a field only where its check bounds each kind's bias within max(STRICT_SIGMAS σ, the
-#: accuracy asked of a field: STRICT_TOLERANCE on PAR, relative; STRICT_RFR on R:FR) -- stricter than the
-#: check's own max(4σ, 3-5 %): a field wrongly refused costs CPU, one wrongly taken costs its bias
-STRICT_SIGMAS = 2.0
-STRICT_TOLERANCE = {"leaves": 0.01, "buds": 0.02}
-STRICT_TOLERANCE_OTHER = 0.02
-STRICT_RFR = 0.01
 
 
 def _finite(*values) -> bool:
