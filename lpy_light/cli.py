@@ -523,8 +523,9 @@ def _grow_parser(sub):
     g.add_argument("--estimator", choices=("auto", "nee", "field", "reuse"), default=None,
                    help="nee: every step traces the chamber's photons again; field: the light entering the plant's "
                         "region traced once into a field (renewed every 10 steps), each step's rays stay in the "
-                        "region; auto: the first field's self-check against nee chooses, for the whole run, the "
-                        "field where it passes and is cheaper on every kind of organ, else nee; reuse: the "
+                        "region; auto: the first field's self-check against nee chooses the field where it bounds "
+                        "the field's bias tightly and the field reaches the precision asked for less CPU, else nee "
+                        "(chosen again as the plant doubles; summary.json says which and why); reuse: the "
                         "chamber's light traced once into a store and gathered at every organ each step (default: "
                         "the model's, else nee)")
     g.add_argument("--threads", type=int, default=None, help="threads (default: all cores)")
